@@ -1,0 +1,326 @@
+"""Scenario files: the YAML schema, its validation, and the validated :class:`Scenario`."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import numpy as np
+import yaml
+
+from .exceptions import JointNotFound, ScenarioError, VtmError
+from .integrators import INTEGRATORS, RK4
+from .robot import Drive, Robot, load_robot
+from .simulation import LockEvent, SimulationResult, simulate
+from .transitions import TRANSITIONS
+
+_NUMBER = {"type": "number"}
+_JOINT_VALUES = {
+    "oneOf": [
+        {"type": "array", "items": _NUMBER},
+        {"type": "object", "additionalProperties": _NUMBER},
+    ],
+}
+
+#: JSON schema of a scenario file. Each key's ``description`` gives its unit and default.
+SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "additionalProperties": False,
+    "required": ["robot", "initial", "duration"],
+    "properties": {
+        "description": {"type": "string", "description": "Free text shown in the summary."},
+        "robot": {
+            "type": "string",
+            "description": "Name of a file in robots/, a URDF path (relative to the scenario "
+            "file) or an example-robot-data name.",
+        },
+        "drives": {
+            "type": "object",
+            "description": "Gear ratio [-] and rotor inertia [kg m^2] per joint name; "
+            "armature = gear_ratio^2 * rotor_inertia. Default: none.",
+            "additionalProperties": {
+                "type": "object",
+                "additionalProperties": False,
+                "properties": {
+                    "gear_ratio": {"type": "number", "exclusiveMinimum": 0},
+                    "rotor_inertia": {"type": "number", "minimum": 0},
+                },
+            },
+        },
+        "initial": {
+            "type": "object",
+            "additionalProperties": False,
+            "required": ["q"],
+            "description": "Initial state.",
+            "properties": {
+                "q": {
+                    **_JOINT_VALUES,
+                    "description": "Joint positions [rad or m]: a list in model order, or "
+                    "{joint_name: value} with 0 for joints not named.",
+                },
+                "v": {
+                    **_JOINT_VALUES,
+                    "description": "Joint velocities [rad/s or m/s], same forms. Default: 0.",
+                },
+            },
+        },
+        "duration": {
+            "type": "number",
+            "exclusiveMinimum": 0,
+            "description": "Simulated time [s], > 0.",
+        },
+        "integrator": {
+            "type": "object",
+            "additionalProperties": False,
+            "description": "Time integration. Default: {method: rk4, dt: 1.0e-4}.",
+            "properties": {
+                "method": {"enum": sorted(INTEGRATORS), "description": "Integrator name."},
+                "dt": {"type": "number", "exclusiveMinimum": 0, "description": "Step [s]."},
+            },
+        },
+        "transition": {
+            "enum": sorted(TRANSITIONS),
+            "description": "Rule applied at a lock. Default: kkt.",
+        },
+        "events": {
+            "type": "array",
+            "description": "Lock events, each {t: time [s], lock: [joint names]}. Default: [].",
+            "items": {
+                "type": "object",
+                "additionalProperties": False,
+                "required": ["t", "lock"],
+                "properties": {
+                    "t": {"type": "number", "description": "Event time [s], in [0, duration]."},
+                    "lock": {
+                        "type": "array",
+                        "items": {"type": "string"},
+                        "minItems": 1,
+                        "description": "Joints that lock at t.",
+                    },
+                },
+            },
+        },
+    },
+}
+
+DEFAULT_DT = 1.0e-4  # [s]
+DEFAULT_TRANSITION = "kkt"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario, ready to simulate.
+
+    Attributes:
+        source: The file it was read from ("" when built from a mapping).
+        name: File stem, used to name outputs.
+        description: Free text.
+        robot: The loaded robot, drives applied.
+        q0: Initial joint positions [rad], shape (n,).
+        v0: Initial joint velocities [rad/s], shape (n,).
+        duration: End time [s].
+        integrator: Integrator object (e.g. RK4 with its dt).
+        transition: Transition rule name.
+        events: Lock events in time order.
+    """
+
+    source: str
+    name: str
+    description: str
+    robot: Robot
+    q0: np.ndarray
+    v0: np.ndarray
+    duration: float
+    integrator: RK4
+    transition: str
+    events: tuple[LockEvent, ...]
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read, validate and resolve a scenario file.
+
+    Raises:
+        ScenarioError: The file is missing, is not YAML, or breaks the schema; the message
+            names the file, the key path and what is allowed.
+    """
+    path = Path(path)
+    source = str(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ScenarioError(source, "", f"cannot read the file ({exc.strerror})") from exc
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise ScenarioError(source, "", f"not valid YAML{where}") from exc
+    return build_scenario(raw, source=source, base_dir=path.parent, name=path.stem)
+
+
+def build_scenario(
+    raw: Any, source: str = "", base_dir: Path | None = None, name: str = "scenario"
+) -> Scenario:
+    """Validate a scenario given as a mapping (the parsed YAML) and resolve it.
+
+    Args:
+        raw: The parsed scenario.
+        source: File name used in error messages.
+        base_dir: Folder that relative robot paths are resolved against.
+        name: Name used for outputs.
+
+    Raises:
+        ScenarioError: The mapping breaks the schema or names unknown robots or joints.
+    """
+    if not isinstance(raw, Mapping):
+        raise ScenarioError(source, "", "a scenario must be a mapping of keys to values")
+    _check_schema(raw, source)
+    duration = float(raw["duration"])
+    if not math.isfinite(duration):
+        raise ScenarioError(source, "duration", f"{duration} is not a finite number of seconds")
+
+    drives = {
+        joint: Drive(
+            gear_ratio=float(d.get("gear_ratio", 1.0)),
+            rotor_inertia=float(d.get("rotor_inertia", 0.0)),
+        )
+        for joint, d in raw.get("drives", {}).items()
+    }
+    try:
+        robot = load_robot(raw["robot"], drives=drives, base_dir=base_dir)
+    except JointNotFound as exc:
+        raise ScenarioError(
+            source, f"drives.{exc.name}", f"unknown joint; the joints are: {', '.join(exc.joints)}"
+        ) from exc
+    except VtmError as exc:
+        raise ScenarioError(source, "robot", str(exc)) from exc
+
+    initial = raw["initial"]
+    q0 = _joint_vector(robot, initial["q"], source, "initial.q")
+    v0 = _joint_vector(robot, initial.get("v", [0.0] * robot.nv), source, "initial.v")
+
+    integ = raw.get("integrator", {})
+    method = integ.get("method", "rk4")
+    dt = float(integ.get("dt", DEFAULT_DT))
+    if not math.isfinite(dt) or dt > duration:
+        raise ScenarioError(
+            source, "integrator.dt", f"{dt} must be a finite step in (0, duration = {duration}] s"
+        )
+    integrator = INTEGRATORS[method](dt=dt)
+
+    events = []
+    locked: set[str] = set()
+    for k, ev in sorted(enumerate(raw.get("events", [])), key=lambda item: item[1]["t"]):
+        t = float(ev["t"])
+        if not 0.0 <= t <= duration:
+            raise ScenarioError(
+                source, f"events[{k}].t", f"{t} s is outside [0, duration = {duration}] s"
+            )
+        for joint in ev["lock"]:
+            _check_joint(robot, joint, source, f"events[{k}].lock")
+            if joint in locked:
+                raise ScenarioError(
+                    source, f"events[{k}].lock", f"joint '{joint}' locks again at t = {t} s but is already locked"
+                )
+            locked.add(joint)
+        events.append(LockEvent(t=t, lock=tuple(ev["lock"])))
+
+    return Scenario(
+        source=source,
+        name=name,
+        description=str(raw.get("description", "")),
+        robot=robot,
+        q0=q0,
+        v0=v0,
+        duration=duration,
+        integrator=integrator,
+        transition=raw.get("transition", DEFAULT_TRANSITION),
+        events=tuple(events),
+    )
+
+
+def run_scenario(scenario: Scenario, transition: str | None = None) -> SimulationResult:
+    """Simulate a scenario, optionally with another transition rule than its own."""
+    return simulate(
+        scenario.robot,
+        scenario.q0,
+        scenario.v0,
+        scenario.duration,
+        scenario.events,
+        scenario.integrator,
+        transition or scenario.transition,
+    )
+
+
+def _check_joint(robot: Robot, joint: str, source: str, key: str) -> None:
+    if joint not in robot.joints:
+        raise ScenarioError(
+            source, key, f"unknown joint '{joint}'; the joints are: {', '.join(robot.joints)}"
+        )
+
+
+def _joint_vector(robot: Robot, value: Any, source: str, key: str) -> np.ndarray:
+    n = robot.nv
+    if isinstance(value, Mapping):
+        out = np.zeros(n)
+        for joint, x in value.items():
+            _check_joint(robot, str(joint), source, key)
+            out[robot.joint_index(str(joint))] = float(x)
+    else:
+        if len(value) != n:
+            raise ScenarioError(
+                source,
+                key,
+                f"has {len(value)} values but the robot has {n} joints ({', '.join(robot.joints)})",
+            )
+        out = np.array(value, dtype=float)
+    if not np.all(np.isfinite(out)):
+        raise ScenarioError(source, key, "values must be finite numbers")
+    return out
+
+
+def _check_schema(raw: Mapping[str, Any], source: str) -> None:
+    validator = jsonschema.Draft202012Validator(SCHEMA)
+    errors = sorted(validator.iter_errors(raw), key=lambda e: (len(e.path), list(map(str, e.path))))
+    if not errors:
+        return
+    error = errors[0]
+    key = _key_path(error.absolute_path)
+    raise ScenarioError(source, key, _describe(error))
+
+
+def _key_path(path: Sequence[Any]) -> str:
+    out = ""
+    for part in path:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def _describe(error: jsonschema.ValidationError) -> str:
+    schema = error.schema if isinstance(error.schema, Mapping) else {}
+    kind = error.validator
+    if kind == "additionalProperties":
+        extra = sorted(set(error.instance) - set(schema.get("properties", {})))
+        allowed = ", ".join(sorted(schema.get("properties", {}))) or "joint names"
+        return f"unknown key '{extra[0]}'; allowed keys: {allowed}"
+    if kind == "required":
+        return f"{error.message.replace('is a required property', 'is missing')}"
+    if kind == "enum":
+        allowed = ", ".join(map(str, error.validator_value))
+        return f"{error.instance!r} is not allowed; allowed values: {allowed}"
+    if kind in ("exclusiveMinimum", "minimum"):
+        op = ">" if kind == "exclusiveMinimum" else ">="
+        return f"{error.instance!r} must be {op} {error.validator_value}"
+    if kind == "type":
+        want = error.validator_value
+        hint = f" ({schema['description']})" if "description" in schema else ""
+        return f"{error.instance!r} is not of type {want}{hint}"
+    if kind == "oneOf":
+        return f"{error.instance!r} must be a list of numbers or a mapping of joint names to numbers"
+    if kind == "minItems":
+        return "must list at least one joint"
+    return error.message
