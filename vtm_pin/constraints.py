@@ -53,7 +53,7 @@ def orthogonal_complement(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     m, n = J.shape
     if m == 0:
         return np.eye(n), np.arange(n)
-    _, R, piv = scipy.linalg.qr(J, pivoting=True, mode="economic")
+    _, _, piv = scipy.linalg.qr(J, pivoting=True, mode="economic")
     p = np.sort(piv[:m])
     s = np.sort(piv[m:])
     Jp = J[:, p]

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+#: Fixed-base arms of example-robot-data named first when a robot is not found.
+_ARMS = ("ur3", "ur5", "ur10", "panda", "kinova", "xarm7", "z1", "so100")
+
 
 class VtmError(Exception):
     """Base class of every error vtm_pin raises on purpose."""
@@ -16,9 +19,11 @@ class RobotNotFound(VtmError):
         self.name = name
         self.local = list(local)
         self.remote = list(remote)
+        arms = [r for r in _ARMS if r in self.remote]
+        more = len(self.remote) - len(arms)
         super().__init__(
             f"Robot '{name}' not found: not a URDF path, not in robots/ ({', '.join(local)}), "
-            f"and not an example-robot-data name (e.g. {', '.join(self.remote[:8])}, ...)"
+            f"and not an example-robot-data name ({', '.join(arms)} and {more} more)"
         )
 
 

@@ -224,7 +224,9 @@ def build_scenario(
             _check_joint(robot, joint, source, f"events[{k}].lock")
             if joint in locked:
                 raise ScenarioError(
-                    source, f"events[{k}].lock", f"joint '{joint}' locks again at t = {t} s but is already locked"
+                    source,
+                    f"events[{k}].lock",
+                    f"joint '{joint}' locks again at t = {t} s but is already locked",
                 )
             locked.add(joint)
         events.append(LockEvent(t=t, lock=tuple(ev["lock"])))
@@ -289,8 +291,11 @@ def _check_schema(raw: Mapping[str, Any], source: str) -> None:
     if not errors:
         return
     error = errors[0]
-    key = _key_path(error.absolute_path)
-    raise ScenarioError(source, key, _describe(error))
+    path = list(error.absolute_path)
+    if error.validator == "additionalProperties":
+        schema = error.schema if isinstance(error.schema, Mapping) else {}
+        path.append(sorted(set(error.instance) - set(schema.get("properties", {})))[0])
+    raise ScenarioError(source, _key_path(path), _describe(error))
 
 
 def _key_path(path: Sequence[Any]) -> str:
@@ -304,13 +309,12 @@ def _describe(error: jsonschema.ValidationError) -> str:
     schema = error.schema if isinstance(error.schema, Mapping) else {}
     kind = error.validator
     if kind == "additionalProperties":
-        extra = sorted(set(error.instance) - set(schema.get("properties", {})))
-        allowed = ", ".join(sorted(schema.get("properties", {}))) or "joint names"
-        return f"unknown key '{extra[0]}'; allowed keys: {allowed}"
+        allowed = ", ".join(sorted(schema.get("properties", {})))
+        return f"unknown key; allowed keys here: {allowed}"
     if kind == "required":
         return f"{error.message.replace('is a required property', 'is missing')}"
     if kind == "enum":
-        allowed = ", ".join(map(str, error.validator_value))
+        allowed = ", ".join(str(x) for x in schema.get("enum", []))
         return f"{error.instance!r} is not allowed; allowed values: {allowed}"
     if kind in ("exclusiveMinimum", "minimum"):
         op = ">" if kind == "exclusiveMinimum" else ">="
@@ -320,7 +324,9 @@ def _describe(error: jsonschema.ValidationError) -> str:
         hint = f" ({schema['description']})" if "description" in schema else ""
         return f"{error.instance!r} is not of type {want}{hint}"
     if kind == "oneOf":
-        return f"{error.instance!r} must be a list of numbers or a mapping of joint names to numbers"
+        return (
+            f"{error.instance!r} must be a list of numbers or a mapping of joint names to numbers"
+        )
     if kind == "minItems":
         return "must list at least one joint"
     return error.message

@@ -128,9 +128,9 @@ def simulate(
     q = np.array(q0, dtype=float).reshape(n)
     v = np.array(v0, dtype=float).reshape(n)
     ordered = sorted(events, key=lambda e: e.t)
-    for event in ordered:
-        if not 0.0 <= event.t <= duration:
-            raise SimulationError(f"Event at t = {event.t} s is outside [0, {duration}] s")
+    for lock_event in ordered:
+        if not 0.0 <= lock_event.t <= duration:
+            raise SimulationError(f"Event at t = {lock_event.t} s is outside [0, {duration}] s")
     rule = TRANSITIONS[transition]
     data = robot.model.createData()
     start = time.perf_counter()
@@ -145,7 +145,8 @@ def simulate(
     rhs_evals = 0
     steps = 0
     t = 0.0
-    for t_end, event in [*[(e.t, e) for e in ordered], (duration, None)]:
+    stops: list[tuple[float, LockEvent | None]] = [(e.t, e) for e in ordered]
+    for t_end, event in [*stops, (duration, None)]:
         segment = integrator.integrate(topology.rhs, t, topology.split(q, v), t_end)
         rhs_evals += segment.rhs_evals
         steps += segment.t.size - 1

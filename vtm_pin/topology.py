@@ -14,6 +14,7 @@ import pinocchio as pin
 
 from .robot import Robot
 
+
 class Topology:
     """The lock set of one phase of motion and the reduced dynamics of its free coordinates.
 

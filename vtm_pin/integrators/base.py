@@ -30,7 +30,10 @@ class Segment:
 class Integrator(Protocol):
     """An integrator that lands exactly on the end of the interval it is given."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        """Name used in scenarios and reports."""
+        ...
 
     def integrate(self, f: Rhs, t0: float, y0: np.ndarray, t1: float) -> Segment:
         """Integrate from ``t0`` to exactly ``t1`` [s]."""

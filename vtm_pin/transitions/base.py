@@ -56,7 +56,9 @@ class Transition(Protocol):
 
     def __call__(
         self, M: np.ndarray, J1: np.ndarray, J2: np.ndarray, v_minus: np.ndarray
-    ) -> TransitionResult: ...
+    ) -> TransitionResult:
+        """Map v- to v+ when J2 is activated on top of J1 at the mass matrix M."""
+        ...
 
 
 def finish(

@@ -1,0 +1,71 @@
+import json
+
+import numpy as np
+import pytest
+import yaml
+from conftest import SCENARIOS
+
+from vtm_pin.cli import main
+
+PAPER = SCENARIOS / "pendulum3r.yaml"
+
+
+def test_run_paper_example_writes_summary_trajectory_and_plots(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", str(PAPER), "--out", str(out), "--compare", "naive"]) == 0
+    printed = capsys.readouterr().out
+    assert "joint2" in printed and "final pose naive - kkt" in printed
+    files = {p.name for p in out.iterdir()}
+    assert {"summary.json", "trajectory.csv", "trajectory_naive.csv"} <= files
+    assert {"joint_angles.png", "joint_rates.png", "momenta.png", "energy.png"} <= files
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["joints"] == ["joint1", "joint2", "joint3"]
+    first = summary["events"][0]
+    assert first["t"] == 0.8 and first["lock"] == ["joint2"]
+    np.testing.assert_allclose(first["v_plus"], [-2.0245, 0.0, 1.3059], atol=5e-5)
+    assert first["energy_loss"] > 0 and len(first["impulse"]) == 1
+    assert summary["final"]["t"] == 2.0 and len(summary["final"]["q"]) == 3
+    assert max(np.abs(summary["compare"]["naive"]["final_q_difference"])) > 0.1
+    header = (out / "trajectory.csv").read_text().splitlines()[0]
+    assert header == "t,q_joint1,q_joint2,q_joint3,v_joint1,v_joint2,v_joint3"
+
+
+def test_transition_option_overrides_scenario(tmp_path):
+    out = tmp_path / "o"
+    assert main(["run", str(PAPER), "--out", str(out), "--transition", "minimal"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["transition"] == "minimal"
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ({"robot": "planar_3r", "initial": {"q": [0, 0, 0]}, "duration": 1, "x": 1}, "unknown key"),
+        ({"robot": "nope", "initial": {"q": [0]}, "duration": 1}, "Robot 'nope' not found"),
+        (
+            {
+                "robot": "planar_3r",
+                "initial": {"q": [0, 0, 0]},
+                "duration": 1,
+                "events": [{"t": 0.5, "lock": ["elbow"]}],
+            },
+            "unknown joint 'elbow'",
+        ),
+    ],
+)
+def test_bad_scenario_prints_one_line_and_writes_nothing(tmp_path, capsys, content, message):
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(content))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("vtm-pin: error: ") and message in err
+    assert err.count("\n") == 1
+    assert not out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["bad.yaml"]  # no staging left behind
+
+
+def test_usage_errors_exit_2(capsys):
+    assert main([]) == 2
+    assert main(["run", str(PAPER), "--transition", "magic"]) == 2
+    assert "invalid choice" in capsys.readouterr().err

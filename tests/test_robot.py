@@ -1,0 +1,111 @@
+import numpy as np
+import planar_reference as ref
+import pytest
+from conftest import ROOT, robot
+
+from vtm_pin import (
+    Drive,
+    JointNotFound,
+    RobotLoadError,
+    RobotNotFound,
+    UnsupportedJoint,
+    compute_bias,
+    compute_M,
+    load_robot,
+)
+from vtm_pin.robot import list_local_robots
+
+# Pinocchio and the closed-form Kane model sum the same terms in a different order:
+# they agree to round-off, ~1e-13 of entries of size ~1e3.
+CLOSED_FORM_RTOL = 1e-11
+
+
+def test_planar_3r_matches_closed_form_dynamics():
+    r = robot("planar_3r")
+    data = r.model.createData()
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        q, v = rng.uniform(-np.pi, np.pi, 3), rng.uniform(-5, 5, 3)
+        M = compute_M(r.model, data, q)
+        np.testing.assert_allclose(M, ref.mass_matrix(q), rtol=CLOSED_FORM_RTOL, atol=1e-10)
+        np.testing.assert_allclose(
+            compute_bias(r.model, data, q, v), ref.bias(q, v), rtol=CLOSED_FORM_RTOL, atol=1e-10
+        )
+
+
+def test_planar_3r_has_paper_parameters():
+    r = robot("planar_3r")
+    assert r.joints == ("joint1", "joint2", "joint3")
+    assert r.model.nq == r.model.nv == 3
+    np.testing.assert_array_equal(r.model.gravity.linear, [0.0, 0.0, -9.81])
+    for jid in (1, 2, 3):
+        inertia = r.model.inertias[jid]
+        assert inertia.mass == 108.0
+        np.testing.assert_allclose(inertia.lever, [0.0, 0.0, -0.5])
+
+
+@pytest.mark.parametrize("name", list_local_robots())
+def test_every_local_robot_loads(name):
+    r = load_robot(name)
+    assert r.nv == len(r.joints) > 0
+
+
+def test_load_by_path_and_relative_path():
+    path = ROOT / "robots" / "planar_3r.urdf"
+    assert load_robot(path).joints == robot("planar_3r").joints
+    assert load_robot("planar_3r.urdf", base_dir=ROOT / "robots").nv == 3
+
+
+@pytest.mark.parametrize("name, nv", [("ur5", 6), ("panda", 9)])
+def test_load_example_robot_data(name, nv):
+    assert robot(name).nv == nv
+
+
+def test_drive_sets_reflected_inertia():
+    plain = load_robot("planar_3r")
+    geared = load_robot("planar_3r", drives={"joint2": Drive(gear_ratio=100, rotor_inertia=2e-4)})
+    q = np.array([0.3, -0.2, 0.1])
+    dM = compute_M(geared.model, geared.model.createData(), q) - compute_M(
+        plain.model, plain.model.createData(), q
+    )
+    expected = np.zeros((3, 3))
+    expected[1, 1] = 100**2 * 2e-4
+    np.testing.assert_allclose(dM, expected, atol=1e-12)
+    assert geared.gear_ratio.tolist() == [1.0, 100.0, 1.0]
+
+
+def test_unknown_robot_names_the_choices():
+    with pytest.raises(RobotNotFound, match=r"Robot 'no_such_arm' not found.*planar_3r.*ur5"):
+        load_robot("no_such_arm")
+
+
+def test_missing_urdf_file():
+    with pytest.raises(RobotLoadError, match=r"'missing\.urdf': no such file"):
+        load_robot("missing.urdf")
+
+
+def test_broken_urdf_gives_urdfdom_reason(tmp_path):
+    bad = tmp_path / "bad.urdf"
+    bad.write_text(
+        '<robot name="b"><link name="a"/><link name="c"/><joint name="j" type="revolute">'
+        '<parent link="a"/><child link="c"/></joint></robot>'
+    )
+    with pytest.raises(RobotLoadError, match=r"bad\.urdf'.*does not specify limits"):
+        load_robot(bad)
+
+
+def test_continuous_joint_is_rejected(tmp_path):
+    urdf = tmp_path / "cont.urdf"
+    urdf.write_text(
+        '<robot name="c"><link name="a"/><link name="b"><inertial><mass value="1"/>'
+        '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>'
+        '<joint name="spin" type="continuous"><parent link="a"/><child link="b"/>'
+        '<axis xyz="0 0 1"/></joint></robot>'
+    )
+    with pytest.raises(UnsupportedJoint, match=r"Joint 'spin'.*use 'revolute' instead"):
+        load_robot(urdf)
+
+
+def test_drive_on_unknown_joint():
+    with pytest.raises(JointNotFound, match=r"Joint 'elbow' not in the model.*joint1, joint2"):
+        load_robot("planar_3r", drives={"elbow": Drive()})

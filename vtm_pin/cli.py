@@ -1,0 +1,123 @@
+"""Command-line interface: ``vtm-pin run SCENARIO.yaml [--out DIR] [--transition NAME]``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+from .analysis import compute_energy_momentum
+from .exceptions import VtmError
+from .plotting import plot_energy, plot_joint_angles, plot_joint_rates, plot_momenta
+from .report import build_summary, format_summary, write_trajectory
+from .scenario import load_scenario, run_scenario
+from .transitions import TRANSITIONS
+
+#: Exit codes: 0 success, 1 a user error (bad scenario, robot, option value), 2 bad usage.
+EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code instead of exiting (tests call this)."""
+    parser = _parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse has printed its one-line usage error
+        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    try:
+        return int(args.func(args))
+    except VtmError as exc:
+        print(f"vtm-pin: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="vtm-pin",
+        description="Emergency-stop simulator: joints lock one after another and the free "
+        "joints' momentum is conserved at each lock (SI units: s, rad, rad/s, N m s, J).",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser(
+        "run",
+        help="simulate a scenario file and write its summary, trajectory and plots",
+        description="Simulate SCENARIO.yaml; print a per-event table and write summary.json, "
+        "trajectory.csv and PNG plots into --out.",
+    )
+    run.add_argument("scenario", type=Path, help="scenario YAML file")
+    run.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default: results/<scenario name>); files in it are replaced",
+    )
+    run.add_argument(
+        "--transition",
+        choices=sorted(TRANSITIONS),
+        default=None,
+        help="transition rule at a lock, overriding the scenario's (default: the scenario's)",
+    )
+    run.add_argument(
+        "--compare",
+        choices=sorted(TRANSITIONS),
+        action="append",
+        default=[],
+        help="also run with this rule and overlay it in the plots (repeatable), e.g. naive",
+    )
+    run.set_defaults(func=_run)
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    scenario = load_scenario(args.scenario)
+    out = args.out if args.out is not None else Path("results") / scenario.name
+    if out.exists() and not out.is_dir():
+        print(f"vtm-pin: error: --out '{out}' exists and is not a folder", file=sys.stderr)
+        return EXIT_ERROR
+    result = run_scenario(scenario, args.transition)
+    energy = compute_energy_momentum(scenario.robot, result)
+    others = {
+        name: run_scenario(scenario, name) for name in args.compare if name != result.transition
+    }
+    runs = {result.transition: (result, energy)}
+    runs.update(
+        {
+            name: (other, compute_energy_momentum(scenario.robot, other))
+            for name, other in others.items()
+        }
+    )
+    summary = build_summary(scenario, result, energy, others)
+
+    parent = out.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
+    try:
+        (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        write_trajectory(staging / "trajectory.csv", result)
+        for name, other in others.items():
+            write_trajectory(staging / f"trajectory_{name}.csv", other)
+        figures = {
+            "joint_angles.png": plot_joint_angles(runs),
+            "joint_rates.png": plot_joint_rates(runs),
+            "momenta.png": plot_momenta(runs),
+            "energy.png": plot_energy(runs),
+        }
+        for filename, figure in figures.items():
+            figure.savefig(staging / filename, dpi=120)
+        out.mkdir(parents=True, exist_ok=True)
+        for item in sorted(staging.iterdir()):
+            os.replace(item, out / item.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    print(format_summary(summary))
+    print(f"\nwrote {out}/: {', '.join(['summary.json', 'trajectory.csv', *figures])}")
+    return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())
