@@ -3,6 +3,7 @@
 import re
 
 from conftest import ROOT
+
 from vtm_pin.scenario import SCHEMA
 
 README = (ROOT / "README.md").read_text()
