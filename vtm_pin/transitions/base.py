@@ -14,6 +14,7 @@ from typing import Protocol
 import numpy as np
 
 from ..constraints import orthogonal_complement
+from ..exceptions import TransitionError
 
 
 @dataclass(frozen=True)
@@ -105,3 +106,38 @@ def finish(
         p_free_plus=F.T @ M @ v_plus,
         residual=residual,
     )
+
+
+def solve_saddle_point(
+    A: np.ndarray, G: np.ndarray, c: np.ndarray, name: str
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Solve the momentum balance with constraints, the shape shared by every formulation.
+
+    .. math:: \begin{pmatrix} A & G^T \\ G & 0 \end{pmatrix}
+              \begin{pmatrix} x \\ \Lambda \end{pmatrix} =
+              \begin{pmatrix} 0 \\ c \end{pmatrix}
+
+    Args:
+        A: Mass matrix of the formulation (M or F1^T M F1), shape (k, k).
+        G: Constraint rows (J+, J2 N or J2 F1), shape (m, k).
+        c: Right-hand side of the velocity constraints, shape (m,).
+        name: Formulation name for the error message.
+
+    Returns:
+        ``(x, Lambda)``: the velocity jump in the formulation's coordinates and the impulses.
+
+    Raises:
+        TransitionError: The matrix is singular (redundant constraints).
+    """
+    k, m = A.shape[0], G.shape[0]
+    K = np.zeros((k + m, k + m))
+    K[:k, :k] = A
+    K[:k, k:] = G.T
+    K[k:, :k] = G
+    try:
+        x = np.linalg.solve(K, np.concatenate([np.zeros(k), c]))
+    except np.linalg.LinAlgError as exc:
+        raise TransitionError(
+            f"{name} transition: singular system, the constraints are redundant"
+        ) from exc
+    return x[:k], x[k:]

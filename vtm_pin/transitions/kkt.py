@@ -12,8 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..exceptions import TransitionError
-from .base import TransitionResult, finish
+from .base import TransitionResult, finish, solve_saddle_point
 
 
 def compute_transition(
@@ -33,16 +32,6 @@ def compute_transition(
     Raises:
         TransitionError: The KKT matrix is singular (redundant constraints).
     """
-    n = M.shape[0]
     J = np.vstack([J1, J2])
-    m = J.shape[0]
-    K = np.zeros((n + m, n + m))
-    K[:n, :n] = M
-    K[:n, n:] = J.T
-    K[n:, :n] = J
-    rhs = np.concatenate([np.zeros(n), -J @ v_minus])
-    try:
-        x = np.linalg.solve(K, rhs)
-    except np.linalg.LinAlgError as exc:
-        raise TransitionError("KKT matrix is singular: the constraints are redundant") from exc
-    return finish(M, J1, J2, v_minus, v_minus + x[:n], x[n:])
+    dv, Lambda = solve_saddle_point(M, J, -J @ v_minus, "KKT")
+    return finish(M, J1, J2, v_minus, v_minus + dv, Lambda)

@@ -16,8 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..constraints import orthogonal_complement
-from ..exceptions import TransitionError
-from .base import TransitionResult, finish
+from .base import TransitionResult, finish, solve_saddle_point
 
 
 def compute_transition(
@@ -38,16 +37,6 @@ def compute_transition(
         TransitionError: J1 is redundant or the reduced system is singular.
     """
     F1, s = orthogonal_complement(J1)
-    k = F1.shape[1]
-    m2 = J2.shape[0]
-    Mbar = F1.T @ M @ F1
     G = J2 @ F1
-    K = np.zeros((k + m2, k + m2))
-    K[:k, :k] = Mbar
-    K[:k, k:] = G.T
-    K[k:, :k] = G
-    try:
-        x = np.linalg.solve(K, np.concatenate([np.zeros(k), -G @ v_minus[s]]))
-    except np.linalg.LinAlgError as exc:
-        raise TransitionError(f"Minimal-coordinate transition failed: {exc}") from exc
-    return finish(M, J1, J2, v_minus, v_minus + F1 @ x[:k])
+    ds, _ = solve_saddle_point(F1.T @ M @ F1, G, -G @ v_minus[s], "Minimal-coordinate")
+    return finish(M, J1, J2, v_minus, v_minus + F1 @ ds)

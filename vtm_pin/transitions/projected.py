@@ -17,7 +17,7 @@ import numpy as np
 import scipy.linalg
 
 from ..exceptions import TransitionError
-from .base import TransitionResult, finish
+from .base import TransitionResult, finish, solve_saddle_point
 
 
 def compute_null_space_projector(M: np.ndarray, J1: np.ndarray) -> np.ndarray:
@@ -55,16 +55,9 @@ def compute_transition(
     Raises:
         TransitionError: M is not positive definite or the system is singular.
     """
-    n = M.shape[0]
-    m2 = J2.shape[0]
     try:
         N = compute_null_space_projector(M, J1)
-        G = J2 @ N
-        K = np.zeros((n + m2, n + m2))
-        K[:n, :n] = M
-        K[:n, n:] = G.T
-        K[n:, :n] = G
-        x = np.linalg.solve(K, np.concatenate([np.zeros(n), -J2 @ v_minus]))
     except np.linalg.LinAlgError as exc:
-        raise TransitionError(f"Projected transition failed: {exc}") from exc
-    return finish(M, J1, J2, v_minus, v_minus + x[:n])
+        raise TransitionError(f"Projected transition: {exc}") from exc
+    dv, _ = solve_saddle_point(M, J2 @ N, -J2 @ v_minus, "Projected")
+    return finish(M, J1, J2, v_minus, v_minus + dv)
