@@ -11,11 +11,23 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+from matplotlib.figure import Figure
+
 from .analysis import compute_energy_momentum
 from .exceptions import VtmError
-from .plotting import plot_energy, plot_joint_angles, plot_joint_rates, plot_momenta
-from .report import build_summary, format_summary, write_trajectory
+from .plotting import (
+    plot_brake_states,
+    plot_energy,
+    plot_joint_angles,
+    plot_joint_rates,
+    plot_momenta,
+    plot_tcp_path,
+)
+from .report import build_summary, format_stopping, format_summary, write_trajectory
 from .scenario import load_scenario, run_scenario
+from .simulation import SimulationResult
+from .stopping import compute_stopping_report
 from .transitions import TRANSITIONS
 
 #: Exit codes: 0 success, 1 a user error (bad scenario, robot, option value), 2 bad usage.
@@ -80,33 +92,58 @@ def _run(args: argparse.Namespace) -> int:
         print(f"vtm-pin: error: --out '{out}' exists and is not a folder", file=sys.stderr)
         return EXIT_ERROR
     result = run_scenario(scenario, args.transition)
-    energy = compute_energy_momentum(scenario.robot, result)
     others = {
         name: run_scenario(scenario, name) for name in args.compare if name != result.transition
     }
-    runs = {result.transition: (result, energy)}
-    runs.update(
-        {
-            name: (other, compute_energy_momentum(scenario.robot, other))
-            for name, other in others.items()
+    results = {result.transition: result, **others}
+    runs = {name: (r, compute_energy_momentum(scenario.robot, r)) for name, r in results.items()}
+    stopping = {}
+    if scenario.stop is not None:
+        stopping = {
+            name: compute_stopping_report(scenario.robot, r, scenario.brakes, scenario.tool_frame)
+            for name, r in results.items()
         }
-    )
-    summary = build_summary(scenario, result, energy, others)
+    summary = build_summary(scenario, result, runs[result.transition][1], others, stopping)
 
+    figures = {
+        "joint_angles.png": plot_joint_angles(runs),
+        "joint_rates.png": plot_joint_rates(runs),
+        "momenta.png": plot_momenta(runs),
+        "energy.png": plot_energy(runs),
+    }
+    ratio = scenario.robot.gear_ratio
+    if np.any(ratio != 1.0):
+        figures["motor_angles.png"] = plot_joint_angles(runs, ratio)
+        figures["motor_rates.png"] = plot_joint_rates(runs, ratio)
+    if scenario.stop is not None:
+        figures["brakes.png"] = plot_brake_states(result)
+        figures["tcp_path.png"] = plot_tcp_path(stopping)
+    _write_outputs(out, summary, results, result.transition, figures)
+    print(format_summary(summary))
+    for name, report in stopping.items():
+        print()
+        print(format_stopping(name, report))
+    written = ["summary.json", "trajectory.csv", *figures]
+    print(f"\nwrote {out}/: {', '.join(written)}")
+    return EXIT_OK
+
+
+def _write_outputs(
+    out: Path,
+    summary: dict[str, object],
+    results: dict[str, SimulationResult],
+    main_rule: str,
+    figures: dict[str, Figure],
+) -> None:
+    """Write everything into a staging folder, then move it into ``out`` (no partial output)."""
     parent = out.resolve().parent
     parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
     try:
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        write_trajectory(staging / "trajectory.csv", result)
-        for name, other in others.items():
-            write_trajectory(staging / f"trajectory_{name}.csv", other)
-        figures = {
-            "joint_angles.png": plot_joint_angles(runs),
-            "joint_rates.png": plot_joint_rates(runs),
-            "momenta.png": plot_momenta(runs),
-            "energy.png": plot_energy(runs),
-        }
+        for name, result in results.items():
+            suffix = "" if name == main_rule else f"_{name}"
+            write_trajectory(staging / f"trajectory{suffix}.csv", result)
         for filename, figure in figures.items():
             figure.savefig(staging / filename, dpi=120)
         out.mkdir(parents=True, exist_ok=True)
@@ -114,9 +151,6 @@ def _run(args: argparse.Namespace) -> int:
             os.replace(item, out / item.name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    print(format_summary(summary))
-    print(f"\nwrote {out}/: {', '.join(['summary.json', 'trajectory.csv', *figures])}")
-    return EXIT_OK
 
 
 if __name__ == "__main__":

@@ -75,3 +75,7 @@ class TransitionError(VtmError):
 
 class SimulationError(VtmError):
     """The simulation diverged or was asked for something it cannot do."""
+
+
+class BrakeError(VtmError):
+    """A brake or stop figure is out of range."""

@@ -1,27 +1,47 @@
-"""Matplotlib figures of a simulation (the paper's figs. 3-5); no numerics, no file reading."""
+"""Matplotlib figures of a simulation (the paper's figs. 3-9, brake states, tool path).
+
+Figures are built with :class:`matplotlib.figure.Figure` (no pyplot state), so they render
+headless and show in notebooks alike. No numerics happen here.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
+import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
 from .analysis import EnergyMomentum
+from .brakes import BrakeMode
 from .simulation import SimulationResult
+from .stopping import StoppingReport
 
 Runs = Mapping[str, tuple[SimulationResult, EnergyMomentum]]
+Values = Callable[[SimulationResult, EnergyMomentum], np.ndarray]
 
 _STYLES = ["-", "--", ":", "-."]
+_SHADES = {
+    BrakeMode.FORWARD: ("tab:orange", "sliding"),
+    BrakeMode.BACKWARD: ("tab:orange", "sliding"),
+    BrakeMode.STUCK: ("0.6", "stuck"),
+    BrakeMode.LOCKED: ("0.35", "locked"),
+}
 
 
-def plot_joint_angles(runs: Runs) -> Figure:
-    """Joint angles q(t) [rad] of every joint, one line style per run."""
-    return _plot(runs, lambda r, e: r.q, "joint angle q [rad]", "Joint angles")
+def plot_joint_angles(runs: Runs, gear_ratio: np.ndarray | None = None) -> Figure:
+    """Joint angles q(t) [rad], or motor angles ratio x q if ``gear_ratio`` is given."""
+    if gear_ratio is None:
+        return _plot(runs, lambda r, e: r.q, "joint angle q [rad]", "Joint angles")
+    return _plot(runs, lambda r, e: r.q * gear_ratio, "motor angle ratio x q [rad]", "Motor angles")
 
 
-def plot_joint_rates(runs: Runs) -> Figure:
-    """Joint rates v(t) [rad/s]; the jumps at the locks are the transitions."""
-    return _plot(runs, lambda r, e: r.v, "joint rate v [rad/s]", "Joint rates")
+def plot_joint_rates(runs: Runs, gear_ratio: np.ndarray | None = None) -> Figure:
+    """Joint rates v(t) [rad/s] (motor rates with ``gear_ratio``); jumps are transitions."""
+    if gear_ratio is None:
+        return _plot(runs, lambda r, e: r.v, "joint rate v [rad/s]", "Joint rates")
+    return _plot(runs, lambda r, e: r.v * gear_ratio, "motor rate ratio x v [rad/s]", "Motor rates")
 
 
 def plot_momenta(runs: Runs) -> Figure:
@@ -53,7 +73,58 @@ def plot_energy(runs: Runs) -> Figure:
     return fig
 
 
-def _plot(runs: Runs, values, ylabel: str, title: str) -> Figure:  # type: ignore[no-untyped-def]
+def plot_brake_states(result: SimulationResult) -> Figure:
+    """Joint angle and rate of every joint, with the brake state shaded behind them."""
+    n = len(result.joints)
+    fig = Figure(figsize=(10, 1.6 * n + 1), layout="constrained")
+    axes = fig.subplots(n, 2, sharex=True, squeeze=False)
+    for j, joint in enumerate(result.joints):
+        for col, (values, label) in enumerate([(result.q, "q [rad]"), (result.v, "v [rad/s]")]):
+            ax = axes[j, col]
+            _shade_modes(ax, result.t, result.modes[:, j])
+            ax.plot(result.t, values[:, j], color="C0", lw=1.2)
+            ax.set_ylabel(f"{joint}\n{label}", fontsize="small")
+            ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("time t [s]")
+    handles = [
+        Patch(color=color, alpha=0.3, label=label)
+        for color, label in {v[1]: v for v in _SHADES.values()}.values()
+    ]
+    fig.legend(handles=handles, loc="outside upper center", ncol=3, fontsize="small")
+    fig.suptitle("Joint motion and brake states", y=1.02)
+    return fig
+
+
+def plot_tcp_path(reports: Mapping[str, StoppingReport]) -> Figure:
+    """Tool-frame path after the stop signal in 3D, start and end marked, one line per rule."""
+    fig = Figure(figsize=(7, 6), layout="constrained")
+    ax = fig.add_subplot(projection="3d")
+    for k, (name, report) in enumerate(reports.items()):
+        p = report.tcp_path
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], _STYLES[k % len(_STYLES)], color=f"C{k}", label=name)
+        ax.scatter(*p[-1], color=f"C{k}", marker="x", s=40)
+    first = next(iter(reports.values()))
+    ax.scatter(*first.tcp_path[0], color="k", marker="o", s=30, label="at stop signal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.set_title(f"Path of '{first.tool_frame}' after the stop signal (x = final)")
+    ax.legend(fontsize="small")
+    return fig
+
+
+def _shade_modes(ax: Axes, t: np.ndarray, modes: np.ndarray) -> None:
+    start = 0
+    for i in range(1, t.size + 1):
+        if i == t.size or modes[i] != modes[start]:
+            mode = BrakeMode(int(modes[start]))
+            if mode in _SHADES:
+                ax.axvspan(t[start], t[i - 1], color=_SHADES[mode][0], alpha=0.3, lw=0)
+            start = i
+
+
+def _plot(runs: Runs, values: Values, ylabel: str, title: str) -> Figure:
     fig = Figure(figsize=(8, 4.5), layout="constrained")
     ax = fig.add_subplot()
     colors = [f"C{i}" for i in range(10)]
@@ -77,19 +148,18 @@ def _plot(runs: Runs, values, ylabel: str, title: str) -> Figure:  # type: ignor
     return fig
 
 
-def _mark_events(ax, runs: Runs) -> None:  # type: ignore[no-untyped-def]
+def _mark_events(ax: Axes, runs: Runs) -> None:
     first = next(iter(runs.values()))[0]
     for event in first.events:
         ax.axvline(event.t, color="0.5", lw=0.8, ls=":")
         ax.annotate(
-            "lock " + ",".join(event.lock),
+            f"{event.kind} " + ",".join(event.lock),
             (event.t, 1.0),
             xycoords=("data", "axes fraction"),
             textcoords="offset points",
             xytext=(2, -10),
             fontsize="x-small",
             color="0.3",
+            rotation=90 if len(first.events) > 3 else 0,
+            va="top",
         )
-
-
-__all__ = ["plot_energy", "plot_joint_angles", "plot_joint_rates", "plot_momenta"]

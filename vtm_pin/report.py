@@ -11,7 +11,8 @@ import numpy as np
 
 from .analysis import EnergyMomentum
 from .scenario import Scenario
-from .simulation import SimulationResult
+from .simulation import BrakeEvent, SimulationResult
+from .stopping import StoppingReport
 
 #: Units of the quantities in summary.json and trajectory.csv.
 UNITS = {
@@ -30,6 +31,7 @@ def build_summary(
     result: SimulationResult,
     energy: EnergyMomentum,
     compare: Mapping[str, SimulationResult] | None = None,
+    stopping: Mapping[str, StoppingReport] | None = None,
 ) -> dict[str, Any]:
     """Summary of a run as plain JSON-ready data (keys documented in the README).
 
@@ -38,7 +40,12 @@ def build_summary(
         result: Its simulation.
         energy: Energies and momenta of ``result``.
         compare: Runs of the same scenario with other transition rules, by rule name.
+        stopping: Stopping reports by rule name (main run and compared runs), for stops.
     """
+    lost_at_events = float(sum(e.transition.energy_loss for e in result.events))
+    brake_work = float(result.brake_work[-1])
+    drive_work = float(result.drive_work[-1])
+    mechanical_loss = float(energy.total[0] - energy.total[-1])
     summary: dict[str, Any] = {
         "scenario": scenario.source,
         "description": scenario.description,
@@ -52,27 +59,116 @@ def build_summary(
         "duration": scenario.duration,
         "events": [_event_summary(result, i) for i in range(len(result.events))],
         "final": _final(result),
+        "assumptions": list(scenario.robot.assumptions) + list(scenario.assumptions),
         "energy": {
             "initial_total": float(energy.total[0]),
             "final_total": float(energy.total[-1]),
-            "lost_at_events": float(sum(e.transition.energy_loss for e in result.events)),
+            "lost_at_events": lost_at_events,
+            "brake_work": brake_work,
+            "drive_work": drive_work,
+            "balance_residual": mechanical_loss - (lost_at_events + brake_work - drive_work),
         },
+        "brake_events": [_brake_event(e) for e in result.brake_events],
         "stats": {
             "rhs_evals": result.rhs_evals,
             "steps": result.steps,
             "wall_time": result.wall_time,
         },
     }
+    if stopping and result.transition in stopping:
+        summary["stopping"] = _stopping(stopping[result.transition], scenario)
     if compare:
         summary["compare"] = {
             name: {
                 "events": [_event_summary(other, i) for i in range(len(other.events))],
                 "final": _final(other),
                 "final_q_difference": (other.q[-1] - result.q[-1]).tolist(),
+                **(
+                    {"stopping": _stopping(stopping[name], scenario)}
+                    if stopping and name in stopping
+                    else {}
+                ),
             }
             for name, other in compare.items()
         }
     return summary
+
+
+def _brake_event(event: BrakeEvent) -> dict[str, Any]:
+    return {
+        "t": event.t,
+        "joint": event.joint,
+        "kind": event.kind,
+        "v": event.v,
+        "holding_torque": _num(event.holding_torque),
+        "static_torque": _num(event.static_torque),
+    }
+
+
+def _stopping(report: StoppingReport, scenario: Scenario) -> dict[str, Any]:
+    ideal = {b.joint for b in scenario.brakes if b.ideal}
+    return {
+        "signal_time": report.signal_time,
+        "all_stopped_time": _num(report.all_stopped_time),
+        "tool_frame": report.tool_frame,
+        "tcp_distance": report.tcp_distance,
+        "tcp_path_length": report.tcp_path_length,
+        "tcp_peak_speed": report.tcp_peak_speed,
+        "tcp_peak_surge": report.tcp_peak_surge,
+        "joints": [
+            {
+                "joint": j.joint,
+                "stop_time": _num(j.stop_time),
+                "stop_angle": j.stop_angle,
+                "stop_angle_motor": j.stop_angle_motor,
+                "peak_surge": j.peak_surge,
+                "friction_impulse": j.friction_impulse,
+                "lock_impulse": j.lock_impulse,
+                "brake_impulse": j.friction_impulse + j.lock_impulse,
+                "peak_holding_torque": _num(j.peak_holding_torque),
+                "holding_margin": "ideal" if j.joint in ideal else _num(j.holding_margin),
+            }
+            for j in report.joints
+        ],
+    }
+
+
+def _num(x: float) -> float | None:
+    """JSON has no NaN or infinity: None stands for 'not applicable'."""
+    return float(x) if np.isfinite(x) else None
+
+
+def format_stopping(name: str, report: StoppingReport) -> str:
+    """Per-joint stopping table of one run."""
+    lines = [
+        f"stopping report ({name}), signal at t = {report.signal_time:g} s:",
+        f"{'joint':<12} {'stop [s]':>9} {'angle [rad]':>12} {'motor [rad]':>12} "
+        f"{'surge [rad/s]':>14} {'brake imp. [N m s]':>19} {'peak hold [N m]':>16} "
+        f"{'margin [N m]':>13}",
+    ]
+    for j in report.joints:
+        lines.append(
+            f"{j.joint:<12} {_fmt(j.stop_time, '9.4f')} {j.stop_angle:12.4f} "
+            f"{j.stop_angle_motor:12.2f} {j.peak_surge:14.4f} "
+            f"{j.friction_impulse + j.lock_impulse:19.3f} {_fmt(j.peak_holding_torque, '16.1f')} "
+            f"{_fmt(j.holding_margin, '13.1f')}"
+        )
+    lines.append(
+        f"all joints stopped after {report.all_stopped_time:.4f} s; tool frame "
+        f"'{report.tool_frame}': stopping distance {report.tcp_distance:.4f} m, path "
+        f"{report.tcp_path_length:.4f} m, peak speed {report.tcp_peak_speed:.3f} m/s, "
+        f"largest speed jump at a lock {report.tcp_peak_surge:.4f} m/s"
+    )
+    return "\n".join(lines)
+
+
+def _fmt(x: float, spec: str) -> str:
+    width = int(spec.split(".")[0])
+    if np.isnan(x):
+        return f"{'-':>{width}}"
+    if np.isinf(x):
+        return f"{'ideal':>{width}}"
+    return format(x, spec)
 
 
 def _event_summary(result: SimulationResult, i: int) -> dict[str, Any]:
@@ -81,6 +177,7 @@ def _event_summary(result: SimulationResult, i: int) -> dict[str, Any]:
     free_after = [j for j in result.joints if j not in event.lock + event.locked_before]
     return {
         "t": event.t,
+        "kind": event.kind,
         "lock": list(event.lock),
         "locked_before": list(event.locked_before),
         "q": event.q.tolist(),
@@ -112,13 +209,15 @@ def write_trajectory(path: Path, result: SimulationResult) -> None:
 def format_summary(summary: Mapping[str, Any]) -> str:
     """The short table the CLI prints: per event t, joints locked, v-/v+, energy lost."""
     joints = summary["joints"]
+    w = 8 * len(joints)
     lines = [
         f"{summary['scenario']}: robot {summary['robot']} ({len(joints)} joints: "
         f"{', '.join(joints)}), transition {summary['transition']}, "
         f"{summary['integrator']['method']} dt = {summary['integrator']['dt']:g} s, "
         f"{summary['duration']:g} s simulated in {summary['stats']['wall_time']:.3f} s",
         "",
-        f"{'t [s]':>8}  {'lock':<14} {'v- [rad/s]':<36} {'v+ [rad/s]':<36} {'lost [J]':>10}",
+        f"{'t [s]':>8}  {'kind':<5} {'lock':<22} {'v- [rad/s]':<{w}} {'v+ [rad/s]':<{w}} "
+        f"{'lost [J]':>10}",
     ]
     runs = [(summary["transition"], summary)] + [
         (name, run) for name, run in summary.get("compare", {}).items()
@@ -128,20 +227,30 @@ def format_summary(summary: Mapping[str, Any]) -> str:
             lines.append(f"  {name}:")
         for ev in run["events"]:
             lines.append(
-                f"{ev['t']:8.4f}  {','.join(ev['lock']):<14} {_vec(ev['v_minus']):<36} "
-                f"{_vec(ev['v_plus']):<36} {ev['energy_loss']:10.4f}"
+                f"{ev['t']:8.4f}  {ev['kind']:<5} {','.join(ev['lock']):<22} "
+                f"{_vec(ev['v_minus']):<{w}} {_vec(ev['v_plus']):<{w}} {ev['energy_loss']:10.4f}"
             )
     lines.append("")
     for name, run in runs:
         final = run["final"]
         label = f"final ({name}) at t = {final['t']:g} s"
         lines.append(f"{label}: q = {_vec(final['q'])} rad, v = {_vec(final['v'])} rad/s")
+    energy = summary["energy"]
+    if energy["brake_work"] or energy["drive_work"]:
+        lines.append(
+            f"energy: lost at locks {energy['lost_at_events']:.4f} J, brake friction work "
+            f"{energy['brake_work']:.4f} J, drive work {energy['drive_work']:.4f} J; balance "
+            f"residual {energy['balance_residual']:.2e} J"
+        )
     for name, run in summary.get("compare", {}).items():
         diff = np.abs(run["final_q_difference"])
         lines.append(
             f"final pose {name} - {summary['transition']}: max |dq| = {diff.max():.4f} rad "
             f"({np.degrees(diff.max()):.2f} deg)"
         )
+    if summary["assumptions"]:
+        lines.append("assumptions behind these figures:")
+        lines.extend(f"  - {' '.join(text.split())}" for text in summary["assumptions"])
     return "\n".join(lines)
 
 

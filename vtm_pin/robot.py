@@ -8,9 +8,11 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
+import yaml
 
 from .exceptions import JointNotFound, RobotLoadError, RobotNotFound, UnsupportedJoint
 
@@ -46,6 +48,9 @@ class Robot:
         model: Pinocchio model; ``model.armature`` holds the reflected rotor inertias.
         joints: Joint names in velocity order, one per coordinate of ``q`` and ``v``.
         gear_ratio: Gear ratio per joint [-], 1 where no drive is given.
+        tool_frame: Frame whose path the stopping report follows (the tool centre point).
+        assumptions: Stated assumptions behind the model's figures (from the robot's
+            ``<name>.yaml`` beside its URDF), quoted by reports.
     """
 
     name: str
@@ -53,6 +58,8 @@ class Robot:
     model: pin.Model
     joints: tuple[str, ...]
     gear_ratio: np.ndarray
+    tool_frame: str = ""
+    assumptions: tuple[str, ...] = ()
 
     @property
     def nv(self) -> int:
@@ -135,8 +142,10 @@ def load_robot(
     else:
         raise RobotNotFound(text, list_local_robots(), list_example_robots())
     joints = _check_joints(model)
+    sidecar = _read_sidecar(Path(source).with_suffix(".yaml"))
+    all_drives = {**sidecar.get("drives", {}), **(drives or {})}
     gear_ratio = np.ones(len(joints))
-    for joint, drive in (drives or {}).items():
+    for joint, drive in all_drives.items():
         if joint not in joints:
             raise JointNotFound(joint, joints)
         i = joints.index(joint)
@@ -144,7 +153,45 @@ def load_robot(
         model.armature[i] = drive.armature
         model.rotorGearRatio[i] = drive.gear_ratio
         model.rotorInertia[i] = drive.rotor_inertia
-    return Robot(name=text, source=source, model=model, joints=joints, gear_ratio=gear_ratio)
+    tool_frame = sidecar.get("tool_frame") or _default_tool_frame(model)
+    if not model.existFrame(tool_frame):
+        raise RobotLoadError(source, f"tool frame '{tool_frame}' is not a frame of the model")
+    return Robot(
+        name=text,
+        source=source,
+        model=model,
+        joints=joints,
+        gear_ratio=gear_ratio,
+        tool_frame=tool_frame,
+        assumptions=tuple(sidecar.get("assumptions", ())),
+    )
+
+
+def _read_sidecar(path: Path) -> dict[str, Any]:
+    """Drives, tool frame and assumptions from ``<urdf stem>.yaml``, if that file exists."""
+    if not path.is_file():
+        return {}
+    try:
+        raw = yaml.safe_load(path.read_text()) or {}
+        if not isinstance(raw, dict) or set(raw) - {"drives", "tool_frame", "assumptions"}:
+            raise ValueError("keys must be drives, tool_frame, assumptions")
+        drives = {
+            str(joint): Drive(float(d.get("gear_ratio", 1.0)), float(d.get("rotor_inertia", 0.0)))
+            for joint, d in (raw.get("drives") or {}).items()
+        }
+    except (yaml.YAMLError, ValueError, AttributeError, TypeError) as exc:
+        raise RobotLoadError(str(path), f"bad robot data file: {exc}") from exc
+    return {
+        "drives": drives,
+        "tool_frame": raw.get("tool_frame"),
+        "assumptions": [str(a) for a in raw.get("assumptions") or []],
+    }
+
+
+def _default_tool_frame(model: pin.Model) -> str:
+    """``tool0`` if the model has it, else its last frame."""
+    names = [frame.name for frame in model.frames]
+    return "tool0" if "tool0" in names else names[-1]
 
 
 def _build_from_urdf(path: Path) -> pin.Model:

@@ -12,10 +12,12 @@ import jsonschema
 import numpy as np
 import yaml
 
-from .exceptions import JointNotFound, ScenarioError, VtmError
+from .brakes import Brake
+from .exceptions import BrakeError, JointNotFound, ScenarioError, VtmError
 from .integrators import INTEGRATORS, RK4
 from .robot import Drive, Robot, load_robot
 from .simulation import LockEvent, SimulationResult, simulate
+from .stop import DEFAULT_GAIN, Stop
 from .transitions import TRANSITIONS
 
 _NUMBER = {"type": "number"}
@@ -86,6 +88,74 @@ SCHEMA: dict[str, Any] = {
             "enum": sorted(TRANSITIONS),
             "description": "Rule applied at a lock. Default: kkt.",
         },
+        "tool_frame": {
+            "type": "string",
+            "description": "Frame followed by the stopping report. Default: the robot's "
+            "(tool0 or its last frame).",
+        },
+        "assumptions": {
+            "type": "array",
+            "items": {"type": "string"},
+            "description": "Stated assumptions of this scenario, quoted by the report.",
+        },
+        "stop": {
+            "type": "object",
+            "additionalProperties": False,
+            "description": "Emergency stop. Default: none (no drives, no brakes).",
+            "properties": {
+                "t": {"type": "number", "minimum": 0, "description": "Signal time [s]."},
+                "category": {"enum": [0, 1], "description": "Stop category. Default: 0."},
+                "ramp_time": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "description": "Category 1: time to ramp the rates to zero [s].",
+                },
+                "torque_limit": {
+                    "oneOf": [
+                        {"type": "number", "exclusiveMinimum": 0},
+                        {"type": "array", "items": _NUMBER},
+                        {"type": "object", "additionalProperties": _NUMBER},
+                    ],
+                    "description": "Category 1: drive torque limit, joint side [N m]: one "
+                    "number for all joints, a list, or {joint: value}.",
+                },
+                "time_limit": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "description": "Category 1: latest brake signal after t [s]. Default: "
+                    "ramp_time.",
+                },
+                "gain": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "description": "Category 1: velocity feedback gain [1/s]. Default: 50.",
+                },
+            },
+        },
+        "brakes": {
+            "type": "object",
+            "description": "Brake per joint name; acts after the stop signal. Default: none.",
+            "additionalProperties": {
+                "type": "object",
+                "additionalProperties": False,
+                "properties": {
+                    "ideal": {
+                        "type": "boolean",
+                        "description": "Infinite torque: lock at engagement. Default: false.",
+                    },
+                    "delay": {"type": "number", "description": "Engagement delay [s], >= 0."},
+                    "ramp": {"type": "number", "description": "Normal-force rise time [s]."},
+                    "sliding_torque": {
+                        "type": "number",
+                        "description": "Kinetic torque, motor side [N m], > 0.",
+                    },
+                    "static_torque": {
+                        "type": "number",
+                        "description": "Holding torque, motor side [N m] >= sliding.",
+                    },
+                },
+            },
+        },
         "events": {
             "type": "array",
             "description": "Lock events, each {t: time [s], lock: [joint names]}. Default: [].",
@@ -138,6 +208,10 @@ class Scenario:
     integrator: RK4
     transition: str
     events: tuple[LockEvent, ...]
+    brakes: tuple[Brake, ...] = ()
+    stop: Stop | None = None
+    tool_frame: str = ""
+    assumptions: tuple[str, ...] = ()
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -231,6 +305,15 @@ def build_scenario(
             locked.add(joint)
         events.append(LockEvent(t=t, lock=tuple(ev["lock"])))
 
+    brakes = _brakes(robot, raw.get("brakes", {}), source)
+    stop = _stop(robot, raw.get("stop"), source, duration)
+    if brakes and stop is None:
+        raise ScenarioError(source, "brakes", "brakes act after a stop signal: add a 'stop' key")
+    tool_frame = raw.get("tool_frame", robot.tool_frame)
+    if not robot.model.existFrame(tool_frame):
+        frames = ", ".join(f.name for f in robot.model.frames)
+        raise ScenarioError(source, "tool_frame", f"no frame '{tool_frame}'; frames: {frames}")
+
     return Scenario(
         source=source,
         name=name,
@@ -242,7 +325,67 @@ def build_scenario(
         integrator=integrator,
         transition=raw.get("transition", DEFAULT_TRANSITION),
         events=tuple(events),
+        brakes=brakes,
+        stop=stop,
+        tool_frame=tool_frame,
+        assumptions=tuple(raw.get("assumptions", ())),
     )
+
+
+def _brakes(robot: Robot, raw: Mapping[str, Any], source: str) -> tuple[Brake, ...]:
+    brakes = []
+    for joint, spec in raw.items():
+        key = f"brakes.{joint}"
+        _check_joint(robot, joint, source, key)
+        ideal = bool(spec.get("ideal", False))
+        torques = {"sliding_torque", "static_torque"} & set(spec)
+        if ideal and torques:
+            raise ScenarioError(
+                source,
+                key,
+                "an ideal brake has infinite torque: drop " + " and ".join(sorted(torques)),
+            )
+        if not ideal and "sliding_torque" not in spec:
+            raise ScenarioError(source, key, "needs sliding_torque [N m] (or ideal: true)")
+        try:
+            brakes.append(
+                Brake(
+                    joint=joint,
+                    delay=float(spec.get("delay", 0.0)),
+                    ramp=float(spec.get("ramp", 0.0)),
+                    sliding_torque=math.inf if ideal else float(spec["sliding_torque"]),
+                    static_torque=None if ideal else spec.get("static_torque"),
+                    gear_ratio=float(robot.gear_ratio[robot.joint_index(joint)]),
+                )
+            )
+        except BrakeError as exc:
+            raise ScenarioError(source, key, str(exc)) from exc
+    return tuple(brakes)
+
+
+def _stop(robot: Robot, raw: Any, source: str, duration: float) -> Stop | None:
+    if raw is None:
+        return None
+    limit = raw.get("torque_limit")
+    if isinstance(limit, (int, float)):
+        limit = [float(limit)] * robot.nv
+    torque_limit = (
+        None if limit is None else _joint_vector(robot, limit, source, "stop.torque_limit")
+    )
+    t = float(raw.get("t", 0.0))
+    if t > duration:
+        raise ScenarioError(source, "stop.t", f"{t} s is after the end (duration = {duration} s)")
+    try:
+        return Stop(
+            t=t,
+            category=int(raw.get("category", 0)),
+            ramp_time=raw.get("ramp_time"),
+            torque_limit=torque_limit,
+            time_limit=raw.get("time_limit"),
+            gain=float(raw.get("gain", DEFAULT_GAIN)),
+        )
+    except BrakeError as exc:
+        raise ScenarioError(source, "stop", str(exc)) from exc
 
 
 def run_scenario(scenario: Scenario, transition: str | None = None) -> SimulationResult:
@@ -255,6 +398,8 @@ def run_scenario(scenario: Scenario, transition: str | None = None) -> Simulatio
         scenario.events,
         scenario.integrator,
         transition or scenario.transition,
+        scenario.brakes,
+        scenario.stop,
     )
 
 

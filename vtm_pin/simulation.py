@@ -1,25 +1,36 @@
-"""Hybrid simulation: integrate to the next lock, apply the transition, continue."""
+"""Hybrid simulation: integrate to the next event, apply the transition, continue.
+
+Time events (prescribed locks, the stop signal, brake engagement, ends of ramps) are hit
+exactly: every integration interval ends on the next one. State events (a sliding joint's rate
+reaching zero, a stuck joint's holding torque reaching its static limit) are located by the
+integrator on its own solution. Each lock, prescribed or by sticking, goes through the chosen
+transition rule with J1 the joints already locked and J2 the ones locking now.
+"""
 
 from __future__ import annotations
 
+import heapq
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from .brakes import Brake, BrakeMode
 from .constraints import lock_jacobian
 from .dynamics import compute_M
 from .exceptions import SimulationError
 from .integrators import Integrator
+from .phase import DriveLaw, Phase
 from .robot import Robot
+from .stop import Stop
 from .topology import Topology
 from .transitions import TRANSITIONS, TransitionResult
 
 
 @dataclass(frozen=True)
 class LockEvent:
-    """Joints that lock at a given time.
+    """Joints that lock ideally (instantly, with infinite torque) at a given time.
 
     Attributes:
         t: Event time [s].
@@ -32,7 +43,7 @@ class LockEvent:
 
 @dataclass(frozen=True)
 class EventRecord:
-    """What happened at one event.
+    """A lock: joints added to the locked set, with the transition applied.
 
     Attributes:
         t: Event time [s].
@@ -41,6 +52,8 @@ class EventRecord:
         q: Configuration at the event [rad].
         v_minus: Velocity just before [rad/s].
         transition: The transition result (v_plus, Lambda, energy loss, momenta).
+        kind: ``"lock"`` (prescribed lock or ideal brake) or ``"stick"`` (a sliding brake
+            came to rest and holds).
     """
 
     t: float
@@ -49,6 +62,7 @@ class EventRecord:
     q: np.ndarray
     v_minus: np.ndarray
     transition: TransitionResult
+    kind: str = "lock"
 
     @property
     def v_plus(self) -> np.ndarray:
@@ -57,21 +71,51 @@ class EventRecord:
 
 
 @dataclass(frozen=True)
+class BrakeEvent:
+    """A change of one brake's state.
+
+    Attributes:
+        t: Time [s].
+        joint: Joint name.
+        kind: ``"engage"``, ``"stick"``, ``"reverse"`` (reached v = 0 but could not hold),
+            ``"slip"`` (stuck joint broke loose) or ``"lock"`` (ideal brake).
+        v: The joint's rate at the event as integrated, before it is set to 0 [rad/s].
+        holding_torque: Torque needed to hold the joint at the event [N m] (NaN if unused).
+        static_torque: Static limit at the event, joint side [N m] (NaN if unused).
+    """
+
+    t: float
+    joint: str
+    kind: str
+    v: float
+    holding_torque: float = float("nan")
+    static_torque: float = float("nan")
+
+
+@dataclass(frozen=True)
 class SimulationResult:
     """A simulated motion with its events.
 
     Attributes:
         joints: Joint names, the columns of ``q`` and ``v``.
-        t: Sample times [s], shape (k,). An event time appears twice: before and after the jump.
+        t: Sample times [s], shape (k,). An event time appears twice: before and after it.
         q: Joint positions [rad], shape (k, n).
         v: Joint velocities [rad/s], shape (k, n).
         free: Which joints are free at each sample, shape (k, n), bool.
-        events: One record per event, in time order.
+        modes: :class:`BrakeMode` code per joint and sample, shape (k, n).
+        brake_work: Work dissipated by sliding brakes since t = 0 [J], shape (k,).
+        drive_work: Work done by the drives since t = 0 [J], shape (k,).
+        brake_impulse: Friction impulse each brake delivered to its joint [N m s], shape (n,).
+        holding: Torque each lock exerts to hold its joint [N m], shape (k, n); NaN where the
+            joint is free, and everywhere in runs without brakes (not computed).
+        events: One record per lock, in time order.
+        brake_events: Brake state changes, in time order.
         transition: Name of the transition rule used.
         integrator: Name of the integrator used.
         rhs_evals: Right-hand-side evaluations.
         steps: Integrator steps.
         wall_time: Seconds spent in the simulation loop [s].
+        stop: The emergency stop simulated, if any.
     """
 
     joints: tuple[str, ...]
@@ -79,12 +123,139 @@ class SimulationResult:
     q: np.ndarray
     v: np.ndarray
     free: np.ndarray
+    modes: np.ndarray
+    brake_work: np.ndarray
+    drive_work: np.ndarray
+    brake_impulse: np.ndarray
+    holding: np.ndarray
     events: tuple[EventRecord, ...]
+    brake_events: tuple[BrakeEvent, ...]
     transition: str
     integrator: str
     rhs_evals: int
     steps: int
     wall_time: float
+    stop: Stop | None = None
+
+
+class _Hybrid:
+    """Mutable state of the hybrid loop (kept out of the public result)."""
+
+    def __init__(
+        self,
+        robot: Robot,
+        q: np.ndarray,
+        v: np.ndarray,
+        brakes: Sequence[Brake],
+        stop: Stop | None,
+        rule: str,
+    ) -> None:
+        self.robot = robot
+        n = robot.nv
+        self.q, self.v = q, v
+        self.extras = np.zeros(2 + n)
+        self.locked: list[int] = []
+        self.modes = [BrakeMode.FREE] * n
+        self.brakes = {robot.joint_index(b.joint): b for b in brakes}
+        self.engaged: dict[int, float] = {}
+        self.stop = stop
+        self.drive = DriveLaw.OFF if stop is None else DriveLaw.HOLD
+        self.drive_on = np.full(n, stop is not None)
+        self.v_signal: np.ndarray | None = None
+        self.rule = TRANSITIONS[rule]
+        self.data = robot.model.createData()
+        self.events: list[EventRecord] = []
+        self.brake_events: list[BrakeEvent] = []
+        self.phase = self.new_phase()
+
+    def new_phase(self, locked: Sequence[int] | None = None) -> Phase:
+        topology = Topology(self.robot, self.locked if locked is None else locked, self.q)
+        return Phase(
+            self.robot,
+            topology,
+            self.modes,
+            self.brakes,
+            self.engaged,
+            self.drive,
+            self.drive_on,
+            self.stop,
+            self.v_signal,
+        )
+
+    def lock(self, t: float, joints: Sequence[int], kind: str) -> None:
+        """Apply the transition rule for ``joints`` locking at ``t``."""
+        names = self.robot.joints
+        for i in joints:
+            if i in self.locked:
+                raise SimulationError(f"Joint '{names[i]}' is locked twice (again at t = {t} s)")
+        n = self.robot.nv
+        M = compute_M(self.robot.model, self.data, self.q)
+        result = self.rule(M, lock_jacobian(n, self.locked), lock_jacobian(n, joints), self.v)
+        self.events.append(
+            EventRecord(
+                t=t,
+                lock=tuple(names[i] for i in joints),
+                locked_before=tuple(names[i] for i in self.locked),
+                q=self.q.copy(),
+                v_minus=self.v.copy(),
+                transition=result,
+                kind=kind,
+            )
+        )
+        self.locked = self.locked + list(joints)
+        self.v = result.v_plus.copy()
+        self.v[self.locked] = 0.0
+
+    def engage(self, t: float, i: int, ideal_locks: list[int]) -> None:
+        """Brake ``i`` engages: its drive goes off, and it locks (ideal) or starts sliding."""
+        brake = self.brakes[i]
+        name = self.robot.joints[i]
+        self.drive_on[i] = False
+        self.engaged[i] = t
+        if i in self.locked:
+            return
+        if brake.ideal:
+            self.modes[i] = BrakeMode.LOCKED
+            ideal_locks.append(i)
+            self.brake_events.append(BrakeEvent(t, name, "lock", float(self.v[i])))
+            return
+        self.brake_events.append(BrakeEvent(t, name, "engage", float(self.v[i])))
+        if self.v[i] > 0.0:
+            self.modes[i] = BrakeMode.FORWARD
+        elif self.v[i] < 0.0:
+            self.modes[i] = BrakeMode.BACKWARD
+        else:
+            self.rest(t, i, float(self.v[i]))
+
+    def rest(self, t: float, i: int, v_event: float) -> None:
+        """Joint ``i``'s rate reached zero while braked: stick if the brake can hold it."""
+        brake = self.brakes[i]
+        self.v[i] = 0.0
+        modes = list(self.modes)
+        self.modes[i] = BrakeMode.STUCK
+        trial = self.new_phase([*self.locked, i])
+        y = trial.pack(self.q, self.v, self.extras)
+        hold = float(trial.holding_torque(t, y)[i])
+        limit = brake.static(t - self.engaged[i])
+        name = self.robot.joints[i]
+        if abs(hold) <= limit:
+            self.brake_events.append(BrakeEvent(t, name, "stick", v_event, hold, limit))
+            self.lock(t, [i], "stick")
+        else:
+            # Slide on in the direction the load drives it (opposite to the needed torque).
+            self.modes = modes
+            self.modes[i] = BrakeMode.BACKWARD if hold > 0.0 else BrakeMode.FORWARD
+            self.brake_events.append(BrakeEvent(t, name, "reverse", v_event, hold, limit))
+
+    def slip(self, t: float, i: int) -> None:
+        """Stuck joint ``i`` breaks loose: unlock it and slide in the direction of the load."""
+        hold = float(self.phase.holding_torque(t, self.phase.pack(self.q, self.v, self.extras))[i])
+        limit = self.brakes[i].static(t - self.engaged[i])
+        self.locked = [j for j in self.locked if j != i]
+        self.modes[i] = BrakeMode.BACKWARD if hold > 0.0 else BrakeMode.FORWARD
+        self.brake_events.append(
+            BrakeEvent(t, self.robot.joints[i], "slip", float(self.v[i]), hold, limit)
+        )
 
 
 def simulate(
@@ -95,28 +266,32 @@ def simulate(
     events: Sequence[LockEvent],
     integrator: Integrator,
     transition: str = "kkt",
+    brakes: Sequence[Brake] = (),
+    stop: Stop | None = None,
 ) -> SimulationResult:
-    """Simulate the robot released at (q0, v0) with joints locking at the given times.
+    """Simulate the robot from (q0, v0) with prescribed locks, and brakes after a stop signal.
 
-    No joint torques act (drives off); gravity is the model's. Locks are time events: every
-    integration interval ends exactly on the next event time. At an event the transition rule
-    maps v- to v+ with J1 the joints already locked and J2 those locking now.
+    Without a stop no joint torque acts (drives off). With a stop, the drives hold the joint
+    rates constant until the signal, then act as its category says, and each brake engages
+    after its delay (see :mod:`vtm_pin.stop` and :mod:`vtm_pin.brakes`).
 
     Args:
         robot: The robot.
         q0: Initial joint positions [rad], shape (n,).
         v0: Initial joint velocities [rad/s], shape (n,).
         duration: End time [s], > 0.
-        events: Lock events with 0 <= t <= duration; a joint may lock only once.
+        events: Ideal lock events with 0 <= t <= duration; a joint may lock only once.
         integrator: How to integrate between events.
         transition: Name in :data:`vtm_pin.transitions.TRANSITIONS`.
+        brakes: One brake per braked joint; they act only after a stop signal.
+        stop: The emergency stop, if any.
 
     Returns:
         The sampled motion and event records.
 
     Raises:
         SimulationError: Bad arguments, or the state became non-finite.
-        JointNotFound: An event names an unknown joint.
+        JointNotFound: An event or brake names an unknown joint.
     """
     if transition not in TRANSITIONS:
         raise SimulationError(
@@ -125,29 +300,63 @@ def simulate(
     if not duration > 0.0:
         raise SimulationError(f"Duration {duration} is not a positive number of seconds")
     n = robot.nv
-    q = np.array(q0, dtype=float).reshape(n)
-    v = np.array(v0, dtype=float).reshape(n)
-    ordered = sorted(events, key=lambda e: e.t)
-    for lock_event in ordered:
+    for lock_event in events:
         if not 0.0 <= lock_event.t <= duration:
             raise SimulationError(f"Event at t = {lock_event.t} s is outside [0, {duration}] s")
-    rule = TRANSITIONS[transition]
-    data = robot.model.createData()
+    if brakes and stop is None:
+        raise SimulationError("Brakes act only after a stop signal: give a stop")
     start = time.perf_counter()
+    h = _Hybrid(
+        robot,
+        np.array(q0, dtype=float).reshape(n),
+        np.array(v0, dtype=float).reshape(n),
+        brakes,
+        stop,
+        transition,
+    )
+    queue = _time_events(robot, events, h.brakes, stop, duration)
 
-    locked: list[int] = []
-    topology = Topology(robot, locked, q)
     ts: list[np.ndarray] = []
     qs: list[np.ndarray] = []
     vs: list[np.ndarray] = []
     frees: list[np.ndarray] = []
-    records: list[EventRecord] = []
-    rhs_evals = 0
-    steps = 0
+    modes: list[np.ndarray] = []
+    extras: list[np.ndarray] = []
+    holds: list[np.ndarray] = []
+    rhs_evals = steps = 0
     t = 0.0
-    stops: list[tuple[float, LockEvent | None]] = [(e.t, e) for e in ordered]
-    for t_end, event in [*stops, (duration, None)]:
-        segment = integrator.integrate(topology.rhs, t, topology.split(q, v), t_end)
+    while True:
+        # Events due now (t = 0 or a time event just reached) are applied before integrating.
+        ideal: list[int] = []
+        changed = False
+        while queue and queue[0][0] <= t:
+            _, _, _, kind, payload = heapq.heappop(queue)
+            changed = True
+            if kind == "lock":
+                assert isinstance(payload, tuple)
+                ideal.extend(robot.joint_indices(payload))
+            elif kind == "signal":
+                assert stop is not None
+                if stop.category == 0:
+                    h.drive, h.drive_on[:] = DriveLaw.OFF, False
+                else:
+                    h.drive, h.v_signal = DriveLaw.RAMP, h.v.copy()
+            elif kind == "brake_signal":
+                h.drive_on[[i for i in range(n) if i not in h.brakes]] = False
+            elif kind == "engage":
+                assert isinstance(payload, int)
+                h.engage(t, payload, ideal)
+        if ideal:
+            h.lock(t, ideal, "lock")
+        if changed:
+            h.phase = h.new_phase()
+        if t >= duration:
+            break
+        t_end = min(queue[0][0], duration) if queue else duration
+        phase = h.phase
+        segment = integrator.integrate(
+            phase.rhs, t, phase.pack(h.q, h.v, h.extras), t_end, [e.event for e in phase.events]
+        )
         rhs_evals += segment.rhs_evals
         steps += segment.t.size - 1
         if not np.all(np.isfinite(segment.y)):
@@ -155,53 +364,89 @@ def simulate(
                 f"State became non-finite between t = {t} s and {t_end} s; "
                 f"reduce the step size of {integrator.name}"
             )
-        block_q = np.empty((segment.t.size, n))
-        block_v = np.zeros((segment.t.size, n))
-        k = topology.n_free
-        block_q[:, topology.locked] = topology.q_locked
-        block_q[:, topology.free] = segment.y[:, :k]
-        block_v[:, topology.free] = segment.y[:, k:]
+        k, size = phase.k, segment.t.size
+        block_q = np.empty((size, n))
+        block_v = np.zeros((size, n))
+        block_q[:, phase.topology.locked] = phase.topology.q_locked
+        block_q[:, phase.topology.free] = segment.y[:, :k]
+        block_v[:, phase.topology.free] = segment.y[:, k : 2 * k]
         mask = np.zeros(n, dtype=bool)
-        mask[topology.free] = True
+        mask[phase.topology.free] = True
         ts.append(segment.t)
         qs.append(block_q)
         vs.append(block_v)
-        frees.append(np.broadcast_to(mask, block_q.shape))
-        t = t_end
-        q, v = block_q[-1].copy(), block_v[-1].copy()
-        if event is None:
+        frees.append(np.broadcast_to(mask, (size, n)))
+        modes.append(np.broadcast_to(np.array(h.modes, dtype=np.int8), (size, n)))
+        block_hold = np.full((size, n), np.nan)
+        if brakes and phase.topology.locked:
+            locked = list(phase.topology.locked)
+            for r in range(size):
+                block_hold[r, locked] = phase.holding_torque(segment.t[r], segment.y[r])[locked]
+        holds.append(block_hold)
+        block_extras = phase.unpack_extras(segment.y, h.extras)
+        extras.append(block_extras)
+        t = float(segment.t[-1])
+        h.q, h.v, h.extras = block_q[-1].copy(), block_v[-1].copy(), block_extras[-1].copy()
+        if segment.event is not None:
+            fired = phase.events[segment.event]
+            if fired.kind == "zero_velocity":
+                h.rest(t, fired.joint, float(h.v[fired.joint]))
+            else:
+                h.slip(t, fired.joint)
+            h.phase = h.new_phase()
+        elif t >= duration and not queue:
             break
-        new = robot.joint_indices(event.lock)
-        for i, name in zip(new, event.lock, strict=True):
-            if i in locked:
-                raise SimulationError(f"Joint '{name}' is locked twice (again at t = {t} s)")
-        M = compute_M(robot.model, data, q)
-        result = rule(M, lock_jacobian(n, locked), lock_jacobian(n, new), v)
-        records.append(
-            EventRecord(
-                t=t,
-                lock=tuple(event.lock),
-                locked_before=tuple(robot.joints[i] for i in locked),
-                q=q.copy(),
-                v_minus=v.copy(),
-                transition=result,
-            )
-        )
-        locked = locked + new
-        topology = Topology(robot, locked, q)
-        v = result.v_plus.copy()
-        v[list(locked)] = 0.0
     wall_time = time.perf_counter() - start
+    work = np.vstack(extras)
     return SimulationResult(
         joints=robot.joints,
         t=np.concatenate(ts),
         q=np.vstack(qs),
         v=np.vstack(vs),
         free=np.vstack(frees),
-        events=tuple(records),
+        modes=np.vstack(modes),
+        brake_work=work[:, 0],
+        drive_work=work[:, 1],
+        brake_impulse=work[-1, 2:].copy(),
+        holding=np.vstack(holds),
+        events=tuple(h.events),
+        brake_events=tuple(h.brake_events),
         transition=transition,
         integrator=integrator.name,
         rhs_evals=rhs_evals,
         steps=steps,
         wall_time=wall_time,
+        stop=stop,
     )
+
+
+def _time_events(
+    robot: Robot,
+    events: Sequence[LockEvent],
+    brakes: dict[int, Brake],
+    stop: Stop | None,
+    duration: float,
+) -> list[tuple[float, int, int, str, object]]:
+    """Heap of (t, order, count, kind, payload); at equal t: signal, engage, lock, kink."""
+    items: list[tuple[float, int, str, object]] = []
+    for event in events:
+        robot.joint_indices(event.lock)  # unknown names fail before the run
+        items.append((event.t, 2, "lock", tuple(event.lock)))
+    if stop is not None:
+        items.append((stop.t, 0, "signal", None))
+        if stop.category == 1:
+            assert stop.ramp_time is not None
+            items.append((stop.t + stop.ramp_time, 3, "kink", None))
+            items.append((stop.brake_signal, 1, "brake_signal", None))
+        for i, brake in sorted(brakes.items()):
+            t_engage = stop.brake_signal + brake.delay
+            items.append((t_engage, 1, "engage", i))
+            if brake.ramp > 0.0:
+                items.append((t_engage + brake.ramp, 3, "kink", None))
+    queue = [
+        (t, order, count, kind, payload)
+        for count, (t, order, kind, payload) in enumerate(items)
+        if t <= duration
+    ]
+    heapq.heapify(queue)
+    return queue

@@ -1,8 +1,8 @@
-"""The interface every integrator follows, and the trajectory piece it returns."""
+"""The interface every integrator follows: segments between events, and state events."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -13,28 +13,61 @@ Rhs = Callable[[float, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
-class Segment:
-    """Solution of y' = f(t, y) on one interval between events.
+class StateEvent:
+    """A state event g(t, y) = 0, with scipy ``solve_ivp`` semantics.
 
     Attributes:
-        t: Times of the accepted steps, t[0] = start and t[-1] = end exactly [s], shape (k,).
+        g: Event function; the event is a zero crossing of g.
+        direction: +1 for crossings from negative to positive, -1 for positive to negative,
+            0 for either.
+    """
+
+    g: Callable[[float, np.ndarray], float]
+    direction: int = 0
+
+    def crossed(self, g0: float, g1: float) -> bool:
+        """Whether g went from ``g0`` to ``g1`` across zero in this event's direction.
+
+        A crossing starts strictly on one side: an event function that starts at exactly 0
+        (the state an event handler left behind) does not fire again at once.
+        """
+        if self.direction >= 0 and g0 < 0.0 <= g1:
+            return True
+        return self.direction <= 0 and g0 > 0.0 >= g1
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Solution of y' = f(t, y) on one interval, ended by its end time or a state event.
+
+    Attributes:
+        t: Times of the accepted steps, t[0] = start and t[-1] = end or event time [s].
         y: States at those times, shape (k, len(y0)).
-        rhs_evals: Number of evaluations of f.
+        rhs_evals: Number of evaluations of f (event location included).
+        event: Index of the state event that ended the segment, or None.
     """
 
     t: np.ndarray
     y: np.ndarray
     rhs_evals: int
+    event: int | None = None
 
 
 class Integrator(Protocol):
-    """An integrator that lands exactly on the end of the interval it is given."""
+    """An integrator that lands exactly on the end of its interval and locates state events."""
 
     @property
     def name(self) -> str:
         """Name used in scenarios and reports."""
         ...
 
-    def integrate(self, f: Rhs, t0: float, y0: np.ndarray, t1: float) -> Segment:
-        """Integrate from ``t0`` to exactly ``t1`` [s]."""
+    def integrate(
+        self,
+        f: Rhs,
+        t0: float,
+        y0: np.ndarray,
+        t1: float,
+        events: Sequence[StateEvent] = (),
+    ) -> Segment:
+        """Integrate from ``t0`` to exactly ``t1`` [s], or to the first state event before it."""
         ...

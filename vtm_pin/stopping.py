@@ -1,0 +1,185 @@
+"""The stopping report: where and when each joint stops, and how hard brakes and gears are hit."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .brakes import Brake, BrakeMode
+from .robot import Robot
+from .simulation import SimulationResult
+
+
+@dataclass(frozen=True)
+class JointStop:
+    """How one joint stopped.
+
+    Attributes:
+        joint: Joint name.
+        stop_time: Time from the stop signal until the joint locked for good [s]; NaN if it
+            was still moving at the end.
+        stop_angle: Joint travel from the signal to the end, q(end) - q(signal) [rad].
+        stop_angle_motor: The same on the motor side, x gear ratio [rad].
+        peak_surge: Largest speed-up |v+| - |v-| this joint received from a lock of other
+            joints while it was free [rad/s] (0 if none).
+        friction_impulse: Angular impulse of the brake's sliding friction [N m s].
+        lock_impulse: Sum of the impulsive torques its lock took at lock events, -Lambda
+            [N m s] (its own lock and later locks of other joints).
+        peak_holding_torque: Largest |torque| the lock had to hold while locked [N m], joint
+            side; NaN if never locked or not computed.
+        holding_margin: Smallest static torque minus |holding torque| while stuck [N m];
+            +inf for ideal locks, NaN if the joint never stuck.
+    """
+
+    joint: str
+    stop_time: float
+    stop_angle: float
+    stop_angle_motor: float
+    peak_surge: float
+    friction_impulse: float
+    lock_impulse: float
+    peak_holding_torque: float
+    holding_margin: float
+
+
+@dataclass(frozen=True)
+class StoppingReport:
+    """Stopping report of an emergency stop.
+
+    Attributes:
+        signal_time: When the stop button was pressed [s].
+        joints: One :class:`JointStop` per joint, in model order.
+        all_stopped_time: Time from the signal until every joint is locked [s] (NaN if not).
+        tool_frame: Frame followed.
+        tcp_path: Tool-frame positions from the signal on [m], shape (k, 3).
+        tcp_distance: Straight-line distance from the signal position to the final one [m].
+        tcp_path_length: Length of the swept path after the signal [m].
+        tcp_peak_speed: Largest tool-frame speed after the signal [m/s].
+        tcp_peak_surge: Largest jump of the tool-frame speed at a lock [m/s].
+    """
+
+    signal_time: float
+    joints: tuple[JointStop, ...]
+    all_stopped_time: float
+    tool_frame: str
+    tcp_path: np.ndarray
+    tcp_distance: float
+    tcp_path_length: float
+    tcp_peak_speed: float
+    tcp_peak_surge: float
+
+
+def compute_stopping_report(
+    robot: Robot,
+    result: SimulationResult,
+    brakes: tuple[Brake, ...] = (),
+    tool_frame: str | None = None,
+) -> StoppingReport:
+    """Derive the stopping report of a simulated stop (or of a run with prescribed locks).
+
+    Args:
+        robot: The robot simulated.
+        result: The simulation.
+        brakes: Its brakes (for the static limits of the holding margin).
+        tool_frame: Frame to follow; the robot's tool frame by default.
+    """
+    t_signal = result.stop.t if result.stop is not None else 0.0
+    after = result.t >= t_signal
+    i0 = int(np.argmax(after))
+    n = robot.nv
+    locked_for_good = (
+        np.isin(result.modes[-1], (BrakeMode.STUCK, BrakeMode.LOCKED)) | ~result.free[-1]
+    )
+
+    stop_time = np.full(n, np.nan)
+    surge = np.zeros(n)
+    lock_impulse = np.zeros(n)
+    for event in result.events:
+        for name in event.lock:
+            j = robot.joint_index(name)
+            if locked_for_good[j]:
+                stop_time[j] = event.t - t_signal
+        order = [robot.joint_index(name) for name in event.locked_before + event.lock]
+        lock_impulse[order] += -event.transition.Lambda
+        free_after = [j for j in range(n) if j not in order]
+        if free_after:
+            gain = np.abs(event.v_plus[free_after]) - np.abs(event.v_minus[free_after])
+            surge[free_after] = np.maximum(surge[free_after], gain)
+
+    hold = result.holding
+    by_joint = {robot.joint_index(b.joint): b for b in brakes}
+    engaged = {e.joint: e.t for e in result.brake_events if e.kind in ("engage", "lock")}
+    peak_hold = np.full(n, np.nan)
+    margin = np.full(n, np.nan)
+    for j in range(n):
+        locked = ~result.free[:, j] & np.isfinite(hold[:, j])
+        if locked.any():
+            peak_hold[j] = float(np.max(np.abs(hold[locked, j])))
+        brake = by_joint.get(j)
+        stuck = (result.modes[:, j] == BrakeMode.STUCK) & np.isfinite(hold[:, j])
+        if brake is not None and brake.ideal:
+            margin[j] = np.inf
+        elif brake is not None and stuck.any():
+            t0 = engaged[robot.joints[j]]
+            limits = np.array([brake.static(t - t0) for t in result.t[stuck]])
+            margin[j] = float(np.min(limits - np.abs(hold[stuck, j])))
+
+    path, speed = _tool_path(robot, result, tool_frame or robot.tool_frame)
+    tcp_surge = 0.0
+    for event in result.events:
+        jac = _tool_jacobian(robot, event.q, tool_frame or robot.tool_frame)
+        jump = np.linalg.norm(jac @ event.v_plus) - np.linalg.norm(jac @ event.v_minus)
+        tcp_surge = max(tcp_surge, float(jump))
+    joints = tuple(
+        JointStop(
+            joint=name,
+            stop_time=float(stop_time[j]),
+            stop_angle=float(result.q[-1, j] - result.q[i0, j]),
+            stop_angle_motor=float((result.q[-1, j] - result.q[i0, j]) * robot.gear_ratio[j]),
+            peak_surge=float(surge[j]),
+            friction_impulse=float(result.brake_impulse[j]),
+            lock_impulse=float(lock_impulse[j]),
+            peak_holding_torque=float(peak_hold[j]),
+            holding_margin=float(margin[j]),
+        )
+        for j, name in enumerate(robot.joints)
+    )
+    all_stopped = float(np.max(stop_time)) if np.all(np.isfinite(stop_time)) else float("nan")
+    tcp = path[i0:]
+    return StoppingReport(
+        signal_time=t_signal,
+        joints=joints,
+        all_stopped_time=all_stopped,
+        tool_frame=tool_frame or robot.tool_frame,
+        tcp_path=tcp,
+        tcp_distance=float(np.linalg.norm(tcp[-1] - tcp[0])),
+        tcp_path_length=float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))),
+        tcp_peak_speed=float(np.max(speed[i0:])),
+        tcp_peak_surge=tcp_surge,
+    )
+
+
+def _tool_path(robot: Robot, result: SimulationResult, frame: str) -> tuple[np.ndarray, np.ndarray]:
+    """Tool-frame position [m] and speed [m/s] at every sample."""
+    model = robot.model
+    data = model.createData()
+    fid = model.getFrameId(frame)
+    k = result.t.size
+    path = np.empty((k, 3))
+    speed = np.empty(k)
+    for i in range(k):
+        pin.forwardKinematics(model, data, result.q[i], result.v[i])
+        path[i] = pin.updateFramePlacement(model, data, fid).translation
+        velocity = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+        speed[i] = np.linalg.norm(velocity.linear)
+    return path, speed
+
+
+def _tool_jacobian(robot: Robot, q: np.ndarray, frame: str) -> np.ndarray:
+    """Linear tool-frame Jacobian [m/rad], shape (3, n)."""
+    model = robot.model
+    data = model.createData()
+    jac = pin.computeFrameJacobian(model, data, q, model.getFrameId(frame), pin.LOCAL_WORLD_ALIGNED)
+    return np.asarray(jac[:3])
