@@ -140,15 +140,16 @@ def _num(x: float) -> float | None:
 
 def format_stopping(name: str, report: StoppingReport) -> str:
     """Per-joint stopping table of one run."""
+    w = max(12, *(len(j.joint) for j in report.joints))
     lines = [
         f"stopping report ({name}), signal at t = {report.signal_time:g} s:",
-        f"{'joint':<12} {'stop [s]':>9} {'angle [rad]':>12} {'motor [rad]':>12} "
+        f"{'joint':<{w}} {'stop [s]':>9} {'angle [rad]':>12} {'motor [rad]':>12} "
         f"{'surge [rad/s]':>14} {'brake imp. [N m s]':>19} {'peak hold [N m]':>16} "
         f"{'margin [N m]':>13}",
     ]
     for j in report.joints:
         lines.append(
-            f"{j.joint:<12} {_fmt(j.stop_time, '9.4f')} {j.stop_angle:12.4f} "
+            f"{j.joint:<{w}} {_fmt(j.stop_time, '9.4f')} {j.stop_angle:12.4f} "
             f"{j.stop_angle_motor:12.2f} {j.peak_surge:14.4f} "
             f"{j.friction_impulse + j.lock_impulse:19.3f} {_fmt(j.peak_holding_torque, '16.1f')} "
             f"{_fmt(j.holding_margin, '13.1f')}"
