@@ -69,3 +69,41 @@ def test_usage_errors_exit_2(capsys):
     assert main([]) == 2
     assert main(["run", str(PAPER), "--transition", "magic"]) == 2
     assert "invalid choice" in capsys.readouterr().err
+
+
+def test_estop_run_writes_stopping_report_and_brake_plots(tmp_path, capsys):
+    out = tmp_path / "estop"
+    scenario = SCENARIOS / "rx160l_estop_cat0.yaml"
+    assert main(["run", str(scenario), "--out", str(out), "--compare", "naive"]) == 0
+    printed = capsys.readouterr().out
+    assert "stopping report (kkt)" in printed and "stopping report (naive)" in printed
+    assert "assumptions behind these figures" in printed
+    files = {p.name for p in out.iterdir()}
+    assert {"brakes.png", "tcp_path.png", "motor_angles.png", "motor_rates.png"} <= files
+    summary = json.loads((out / "summary.json").read_text())
+    stopping = summary["stopping"]
+    assert [j["joint"] for j in stopping["joints"]] == summary["joints"]
+    assert stopping["joints"][3]["holding_margin"] == "ideal"
+    assert abs(summary["energy"]["balance_residual"]) < 1e-8
+    assert {e["kind"] for e in summary["brake_events"]} == {"engage", "lock", "stick"}
+    assert "stopping" in summary["compare"]["naive"]
+
+
+def test_bad_brake_writes_nothing(tmp_path, capsys):
+    path = tmp_path / "bad.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "robot": "planar_3r",
+                "initial": {"q": [0, 0, 0]},
+                "duration": 1,
+                "stop": {"t": 0},
+                "brakes": {"joint1": {"sliding_torque": 5, "static_torque": 1}},
+            }
+        )
+    )
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "static torque 1 N m is below the sliding torque 5.0 N m" in err
+    assert err.count("\n") == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["bad.yaml"]

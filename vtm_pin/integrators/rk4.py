@@ -32,7 +32,7 @@ class RK4:
     """
 
     dt: float
-    event_tol: float = 1e-13
+    event_tol: float = 1e-14
     name: str = "rk4"
 
     def integrate(
