@@ -3,8 +3,8 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
-
 from conftest import robot
+
 from vtm_pin import RK4, LockEvent, compute_energy_momentum, compute_M, simulate
 from vtm_pin.brakes import Brake, BrakeMode
 from vtm_pin.exceptions import BrakeError
@@ -19,11 +19,10 @@ V0 = np.array([2.0, 0.0, 0.0])  # [rad/s]
 RESLIP_BRAKE = Brake("joint1", sliding_torque=300.0, static_torque=400.0)
 
 
-def run_pendulum(
-    brakes, duration=3.0, dt=1e-4, stop=Stop(0.0), events=(), event_tol=1e-14, v0=V0
-):
+def run_pendulum(brakes, duration=3.0, dt=1e-4, stop=None, events=(), event_tol=1e-14, v0=V0):
     r = robot("planar_3r")
     integrator = RK4(dt, event_tol=event_tol)
+    stop = Stop(0.0) if stop is None else stop
     return simulate(r, Q0, v0, duration, list(events), integrator, "kkt", brakes, stop)
 
 
@@ -101,7 +100,10 @@ def brake_convergence(levels=(1e3, 1e4, 1e5, 1e6)):
             v0=V_MOVING,
         )
         errors.append(
-            max(np.max(np.abs(finite.v[-1] - ideal.v[-1])), np.max(np.abs(finite.q[-1] - ideal.q[-1])))
+            max(
+                np.max(np.abs(finite.v[-1] - ideal.v[-1])),
+                np.max(np.abs(finite.q[-1] - ideal.q[-1])),
+            )
         )
     return np.array(errors)
 
@@ -117,7 +119,16 @@ def test_growing_brake_torque_converges_to_ideal_jump():
 def test_state_machine_sticks_reverses_and_slips():
     result = run_pendulum([RESLIP_BRAKE])
     kinds = [e.kind for e in result.brake_events]
-    assert kinds[:8] == ["engage", "reverse", "reverse", "reverse", "stick", "slip", "stick", "slip"]
+    assert kinds[:8] == [
+        "engage",
+        "reverse",
+        "reverse",
+        "reverse",
+        "stick",
+        "slip",
+        "stick",
+        "slip",
+    ]
     static = RESLIP_BRAKE.static(0.0)
     for event in result.brake_events:
         if event.kind in ("stick", "reverse"):
@@ -152,6 +163,7 @@ def test_event_times_are_located_to_1e10_seconds():
 def test_energy_balance_over_a_braked_stop(name):
     """(T + V) lost = brake friction work + energy lost at locks, to the integrator's accuracy."""
     from conftest import SCENARIOS
+
     from vtm_pin import load_scenario, run_scenario
 
     scenario = load_scenario(SCENARIOS / f"{name}.yaml")

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
-
 from conftest import SCENARIOS
+
 from vtm_pin import load_scenario, run_scenario
 from vtm_pin.stopping import compute_stopping_report
 
@@ -20,7 +20,10 @@ def test_paper_example_two_consistent_vs_naive(paper_locks):
     for event in kkt.events[1:]:
         tr = event.transition
         np.testing.assert_allclose(tr.p_free_plus, tr.p_free_minus, rtol=1e-10, atol=1e-9)
-    jumps = [np.max(np.abs(e.transition.p_free_plus - e.transition.p_free_minus)) for e in naive.events[1:3]]
+    jumps = [
+        np.max(np.abs(e.transition.p_free_plus - e.transition.p_free_minus))
+        for e in naive.events[1:3]
+    ]
     assert min(jumps) > 1.0  # [N m s]: the naive rule breaks the free joints' momentum
     # The naive rule even creates energy at the joint-2 lock (negative loss).
     assert naive.events[2].transition.energy_loss < 0.0 < kkt.events[2].transition.energy_loss
@@ -38,12 +41,17 @@ def test_stopping_report_of_prescribed_locks(paper_locks):
     q0 = runs["kkt"].q[0]
     for j, joint in enumerate(report.joints):
         assert joint.stop_angle == pytest.approx(runs["kkt"].q[-1, j] - q0[j])
-        assert joint.stop_angle_motor == pytest.approx(joint.stop_angle * scenario.robot.gear_ratio[j])
+        assert joint.stop_angle_motor == pytest.approx(
+            joint.stop_angle * scenario.robot.gear_ratio[j]
+        )
     # Lock impulses equal -Lambda summed per joint.
     first = runs["kkt"].events[1]
     assert report.joints[0].lock_impulse == pytest.approx(
-        sum(-e.transition.Lambda[list(e.locked_before + e.lock).index("joint_1")]
-            for e in runs["kkt"].events if "joint_1" in e.locked_before + e.lock)
+        sum(
+            -e.transition.Lambda[list(e.locked_before + e.lock).index("joint_1")]
+            for e in runs["kkt"].events
+            if "joint_1" in e.locked_before + e.lock
+        )
     )
     assert first.lock == ("joint_1",)
     assert report.tcp_path_length >= report.tcp_distance > 0.0
