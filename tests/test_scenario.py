@@ -38,7 +38,16 @@ BAD = [
     (changed(["duration"], -1.0), r"'duration': -1.0 must be > 0"),
     (changed(["integrator", "dt"], -1e-4), r"'integrator.dt': -0.0001 must be > 0"),
     (changed(["integrator", "dt"], 5.0), r"'integrator.dt': 5.0 must be a finite step in"),
-    (changed(["integrator", "method"], "euler"), r"'integrator.method'.*allowed values: rk4"),
+    (
+        changed(["integrator", "method"], "rk5"),
+        r"'integrator.method'.*allowed values: dop853, euler, rk4",
+    ),
+    (changed(["integrator", "rtol"], 1e-6), r"'integrator.rtol': applies to dop853 only"),
+    (
+        changed(["integrator"], {"method": "dop853", "dt": 1e-3}),
+        r"'integrator.dt': dop853 chooses its own steps",
+    ),
+    (changed(["integrator"], {"method": "dop853", "rtol": 0}), r"'integrator.rtol': 0 must be >"),
     (changed(["transition"], "magic"), r"allowed values: kkt, minimal, naive, projected"),
     (changed(["robot"], "no_such_arm"), r"'robot': Robot 'no_such_arm' not found"),
     (changed(["robot"], 7), r"'robot': 7 is not of type string"),

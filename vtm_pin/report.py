@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -10,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from .analysis import EnergyMomentum
+from .integrators import Integrator
 from .scenario import Scenario
 from .simulation import BrakeEvent, SimulationResult
 from .stopping import StoppingReport
@@ -55,7 +57,7 @@ def build_summary(
         "joints": list(result.joints),
         "gear_ratio": scenario.robot.gear_ratio.tolist(),
         "transition": result.transition,
-        "integrator": {"method": result.integrator, "dt": scenario.integrator.dt},
+        "integrator": integrator_settings(scenario.integrator),
         "duration": scenario.duration,
         "events": [_event_summary(result, i) for i in range(len(result.events))],
         "final": _final(result),
@@ -214,7 +216,7 @@ def format_summary(summary: Mapping[str, Any]) -> str:
     lines = [
         f"{summary['scenario']}: robot {summary['robot']} ({len(joints)} joints: "
         f"{', '.join(joints)}), transition {summary['transition']}, "
-        f"{summary['integrator']['method']} dt = {summary['integrator']['dt']:g} s, "
+        f"{_describe(summary['integrator'])}, "
         f"{summary['duration']:g} s simulated in {summary['stats']['wall_time']:.3f} s",
         "",
         f"{'t [s]':>8}  {'kind':<5} {'lock':<22} {'v- [rad/s]':<{w}} {'v+ [rad/s]':<{w}} "
@@ -253,6 +255,25 @@ def format_summary(summary: Mapping[str, Any]) -> str:
         lines.append("assumptions behind these figures:")
         lines.extend(f"  - {' '.join(text.split())}" for text in summary["assumptions"])
     return "\n".join(lines)
+
+
+def integrator_settings(integrator: Integrator) -> dict[str, Any]:
+    """``{"method": name, <its settings>}`` for summary.json (event tolerance left out)."""
+    fields = {
+        k: v
+        for k, v in dataclasses.asdict(integrator).items()  # type: ignore[call-overload]
+        if k not in ("name", "event_tol")
+    }
+    if fields.get("max_step") == float("inf"):
+        del fields["max_step"]
+    return {"method": integrator.name, **fields}
+
+
+def _describe(settings: Mapping[str, Any]) -> str:
+    parts = [
+        f"{k} = {v:g}{' s' if k == 'dt' else ''}" for k, v in settings.items() if k != "method"
+    ]
+    return f"{settings['method']} {', '.join(parts)}"
 
 
 def _vec(values: list[float]) -> str:

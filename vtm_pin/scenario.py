@@ -14,7 +14,7 @@ import yaml
 
 from .brakes import Brake
 from .exceptions import BrakeError, JointNotFound, ScenarioError, VtmError
-from .integrators import INTEGRATORS, RK4
+from .integrators import DOP853, FIXED_STEP, INTEGRATORS, Integrator
 from .robot import Drive, Robot, load_robot
 from .simulation import LockEvent, SimulationResult, simulate
 from .stop import DEFAULT_GAIN, Stop
@@ -81,7 +81,21 @@ SCHEMA: dict[str, Any] = {
             "description": "Time integration. Default: {method: rk4, dt: 1.0e-4}.",
             "properties": {
                 "method": {"enum": sorted(INTEGRATORS), "description": "Integrator name."},
-                "dt": {"type": "number", "exclusiveMinimum": 0, "description": "Step [s]."},
+                "dt": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "description": "Step of rk4 / euler [s]. Default: 1.0e-4.",
+                },
+                "rtol": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "description": "dop853 relative tolerance [-]. Default: 1.0e-8.",
+                },
+                "atol": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "description": "dop853 absolute tolerance [state units]. Default: 1.0e-10.",
+                },
             },
         },
         "transition": {
@@ -193,7 +207,7 @@ class Scenario:
         q0: Initial joint positions [rad], shape (n,).
         v0: Initial joint velocities [rad/s], shape (n,).
         duration: End time [s].
-        integrator: Integrator object (e.g. RK4 with its dt).
+        integrator: Integrator object (RK4, SemiImplicitEuler or DOP853).
         transition: Transition rule name.
         events: Lock events in time order.
     """
@@ -205,7 +219,7 @@ class Scenario:
     q0: np.ndarray
     v0: np.ndarray
     duration: float
-    integrator: RK4
+    integrator: Integrator
     transition: str
     events: tuple[LockEvent, ...]
     brakes: tuple[Brake, ...] = ()
@@ -277,14 +291,7 @@ def build_scenario(
     q0 = _joint_vector(robot, initial["q"], source, "initial.q")
     v0 = _joint_vector(robot, initial.get("v", [0.0] * robot.nv), source, "initial.v")
 
-    integ = raw.get("integrator", {})
-    method = integ.get("method", "rk4")
-    dt = float(integ.get("dt", DEFAULT_DT))
-    if not math.isfinite(dt) or dt > duration:
-        raise ScenarioError(
-            source, "integrator.dt", f"{dt} must be a finite step in (0, duration = {duration}] s"
-        )
-    integrator = INTEGRATORS[method](dt=dt)
+    integrator = build_integrator(raw.get("integrator", {}), duration, source)
 
     events = []
     locked: set[str] = set()
@@ -330,6 +337,35 @@ def build_scenario(
         tool_frame=tool_frame,
         assumptions=tuple(raw.get("assumptions", ())),
     )
+
+
+def build_integrator(spec: Mapping[str, Any], duration: float, source: str = "") -> Integrator:
+    """The integrator a scenario's ``integrator`` mapping asks for (defaults: rk4, 1e-4 s).
+
+    Raises:
+        ScenarioError: A key that does not apply to the method, or a step longer than the run.
+    """
+    method = spec.get("method", "rk4")
+    if method in FIXED_STEP:
+        wrong = sorted({"rtol", "atol"} & set(spec))
+        if wrong:
+            raise ScenarioError(
+                source, f"integrator.{wrong[0]}", f"applies to dop853 only, not to {method}"
+            )
+        dt = float(spec.get("dt", DEFAULT_DT))
+        if not math.isfinite(dt) or dt > duration:
+            raise ScenarioError(
+                source,
+                "integrator.dt",
+                f"{dt} must be a finite step in (0, duration = {duration}] s",
+            )
+        fixed: Integrator = INTEGRATORS[method](dt=dt)
+        return fixed
+    if "dt" in spec:
+        raise ScenarioError(
+            source, "integrator.dt", f"{method} chooses its own steps: give rtol / atol instead"
+        )
+    return DOP853(rtol=float(spec.get("rtol", 1e-8)), atol=float(spec.get("atol", 1e-10)))
 
 
 def _brakes(robot: Robot, raw: Mapping[str, Any], source: str) -> tuple[Brake, ...]:

@@ -355,7 +355,12 @@ def simulate(
         t_end = min(queue[0][0], duration) if queue else duration
         phase = h.phase
         segment = integrator.integrate(
-            phase.rhs, t, phase.pack(h.q, h.v, h.extras), t_end, [e.event for e in phase.events]
+            phase.rhs,
+            t,
+            phase.pack(h.q, h.v, h.extras),
+            t_end,
+            [e.event for e in phase.events],
+            n_q=phase.k,
         )
         rhs_evals += segment.rhs_evals
         steps += segment.t.size - 1

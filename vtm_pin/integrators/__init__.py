@@ -3,9 +3,24 @@
 from __future__ import annotations
 
 from .base import Integrator, Rhs, Segment, StateEvent
+from .dop853 import DOP853
+from .euler import SemiImplicitEuler
 from .rk4 import RK4
 
 #: Integrators by the name used in scenarios.
-INTEGRATORS = {"rk4": RK4}
+INTEGRATORS = {"dop853": DOP853, "euler": SemiImplicitEuler, "rk4": RK4}
 
-__all__ = ["INTEGRATORS", "RK4", "Integrator", "Rhs", "Segment", "StateEvent"]
+#: Which integrators step with a fixed dt (the others take rtol / atol).
+FIXED_STEP = ("euler", "rk4")
+
+__all__ = [
+    "DOP853",
+    "FIXED_STEP",
+    "INTEGRATORS",
+    "RK4",
+    "Integrator",
+    "Rhs",
+    "Segment",
+    "SemiImplicitEuler",
+    "StateEvent",
+]

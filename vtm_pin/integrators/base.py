@@ -68,6 +68,11 @@ class Integrator(Protocol):
         y0: np.ndarray,
         t1: float,
         events: Sequence[StateEvent] = (),
+        n_q: int = 0,
     ) -> Segment:
-        """Integrate from ``t0`` to exactly ``t1`` [s], or to the first state event before it."""
+        """Integrate from ``t0`` to exactly ``t1`` [s], or to the first state event before it.
+
+        ``n_q`` tells second-order-aware methods that y[:n_q] are positions whose rates are
+        y[n_q:2 n_q]; the others ignore it.
+        """
         ...

@@ -1,0 +1,175 @@
+"""Adaptive Dormand-Prince 8(5,3) with error control and dense output (Hairer's DOP853).
+
+A lean driver around scipy's DOP853 coefficient tables (``scipy.integrate._ivp``): the same
+method as ``solve_ivp(method="DOP853")`` without the per-step bookkeeping of its solver
+objects, and with the 7th-order dense output built only for steps in which a state event
+fires. Every interval ends exactly on its end time (the next time event); a state event is
+located on the dense output with Brent's method and the next interval restarts from it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate._ivp import dop853_coefficients as coef
+
+from .base import Rhs, Segment, StateEvent
+from .fixed_step import locate
+
+_SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0
+_EXPONENT = -1.0 / 8.0
+_S = coef.N_STAGES  # 12 stages; K[12] is f at the step end (first same as last)
+_A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
+_E3, _E5, _D = coef.E3, coef.E5, coef.D
+_A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
+
+
+@dataclass(frozen=True)
+class DOP853:
+    """Adaptive 8th-order Runge-Kutta, local error kept below atol + rtol |y|.
+
+    Attributes:
+        rtol: Relative tolerance [-].
+        atol: Absolute tolerance [rad, rad/s, J, N m s: state units].
+        max_step: Largest step [s].
+        event_tol: Absolute tolerance of state-event times [s].
+    """
+
+    rtol: float = 1e-8
+    atol: float = 1e-10
+    max_step: float = math.inf
+    event_tol: float = 1e-14
+    name: str = "dop853"
+
+    def integrate(
+        self,
+        f: Rhs,
+        t0: float,
+        y0: np.ndarray,
+        t1: float,
+        events: Sequence[StateEvent] = (),
+        n_q: int = 0,
+    ) -> Segment:
+        """Integrate y' = f(t, y) from ``t0`` to ``t1`` [s], stopping at the first state event."""
+        if y0.size == 0 or t1 <= t0:
+            return Segment(
+                t=np.array([t0, max(t0, t1)]), y=np.zeros((2, y0.size)) + y0, rhs_evals=0
+            )
+        n = y0.size
+        K = np.empty((_S + 1 + _A_EXTRA.shape[0], n))
+        ts, ys = [t0], [y0]
+        t, y = t0, y0
+        fy = f(t, y)
+        evals = 1
+        h, extra = self._first_step(f, t, y, fy, t1 - t0)
+        evals += extra
+        g_prev = [e.g(t, y) for e in events]
+        rejected = False
+        while t < t1:
+            h = min(h, self.max_step)
+            last = t + h >= t1 - 1e-14 * max(1.0, abs(t1))
+            if last:
+                h = t1 - t
+            y_new, f_new, err = self._step(f, t, y, fy, h, K)
+            evals += _S
+            if err > 1.0:
+                h *= max(_MIN_FACTOR, _SAFETY * err**_EXPONENT)
+                rejected = True
+                continue
+            t_new = t1 if last else t + h
+            if events:
+                g_new = [e.g(t_new, y_new) for e in events]
+                fired = [i for i, e in enumerate(events) if e.crossed(g_prev[i], g_new[i])]
+                if fired:
+                    dense = self._dense(f, t, y, y_new, fy, f_new, h, K)
+                    evals += _A_EXTRA.shape[0]
+                    tau, index = locate(events, fired, t, y, dense, h, self.event_tol)
+                    ts.append(t + tau)
+                    ys.append(dense(tau))
+                    return Segment(np.array(ts), np.array(ys), evals, event=index)
+                g_prev = g_new
+            factor = _MAX_FACTOR if err == 0.0 else min(_MAX_FACTOR, _SAFETY * err**_EXPONENT)
+            if rejected:
+                factor = min(1.0, factor)
+            rejected = False
+            t, y, fy = t_new, y_new, f_new
+            ts.append(t)
+            ys.append(y)
+            h *= factor
+        return Segment(np.array(ts), np.array(ys), evals)
+
+    def _scale(self, y: np.ndarray, y_new: np.ndarray) -> np.ndarray:
+        return self.atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
+
+    def _first_step(
+        self, f: Rhs, t: float, y: np.ndarray, fy: np.ndarray, span: float
+    ) -> tuple[float, int]:
+        """Hairer's initial step guess (2 evaluations of f on the way)."""
+        scale = self.atol + self.rtol * np.abs(y)
+        d0 = _rms(y / scale)
+        d1 = _rms(fy / scale)
+        h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+        h0 = min(h0, span)
+        f1 = f(t + h0, y + h0 * fy)
+        d2 = _rms((f1 - fy) / scale) / h0
+        if d1 <= 1e-15 and d2 <= 1e-15:
+            h1 = max(1e-6, h0 * 1e-3)
+        else:
+            h1 = (0.01 / max(d1, d2)) ** (1.0 / 8.0)
+        return min(100.0 * h0, h1, span, self.max_step), 1
+
+    def _step(
+        self, f: Rhs, t: float, y: np.ndarray, fy: np.ndarray, h: float, K: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """One step: new state, f at it, and the scaled error norm (<= 1 to accept)."""
+        K[0] = fy
+        for s in range(1, _S):
+            K[s] = f(t + _C[s] * h, y + h * (_A[s, :s] @ K[:s]))
+        y_new = y + h * (_B @ K[:_S])
+        f_new = f(t + h, y_new)
+        K[_S] = f_new
+        scale = self._scale(y, y_new)
+        err5 = (_E5 @ K[: _S + 1]) / scale
+        err3 = (_E3 @ K[: _S + 1]) / scale
+        e5, e3 = float(err5 @ err5), float(err3 @ err3)
+        if e5 == 0.0 and e3 == 0.0:
+            return y_new, f_new, 0.0
+        return y_new, f_new, abs(h) * e5 / math.sqrt((e5 + 0.01 * e3) * y.size)
+
+    def _dense(
+        self,
+        f: Rhs,
+        t: float,
+        y: np.ndarray,
+        y_new: np.ndarray,
+        fy: np.ndarray,
+        f_new: np.ndarray,
+        h: float,
+        K: np.ndarray,
+    ) -> Callable[[float], np.ndarray]:
+        """The step's 7th-order continuous extension, as a function of the offset tau [s]."""
+        for s, (a, c) in enumerate(zip(_A_EXTRA, _C_EXTRA, strict=True), start=_S + 1):
+            K[s] = f(t + c * h, y + h * (a[:s] @ K[:s]))
+        delta = y_new - y
+        F = np.empty((coef.INTERPOLATOR_POWER, y.size))
+        F[0] = delta
+        F[1] = h * fy - delta
+        F[2] = 2.0 * delta - h * (f_new + fy)
+        F[3:] = h * (_D @ K)
+
+        def dense(tau: float) -> np.ndarray:
+            x = tau / h
+            out = np.zeros_like(y)
+            for i, row in enumerate(F[::-1]):
+                out += row
+                out *= x if i % 2 == 0 else 1.0 - x
+            return y + out
+
+        return dense
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.linalg.norm(x) / math.sqrt(x.size))

@@ -1,0 +1,108 @@
+"""Shared driver of the fixed-step methods: a step grid that lands on the interval end, and
+state events located on the step itself.
+
+A one-step method's step of length tau from (t_k, y_k) is a continuous function y(tau) of the
+method's own order, so g(t_k + tau, y(tau)) = 0 is solved for tau with Brent's method to
+``event_tol`` seconds. The event state is a point of the numerical solution itself.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import scipy.optimize
+
+from .base import Rhs, Segment, StateEvent
+
+#: Relative slack when counting steps, so that t1 - t0 = k dt up to round-off gives k steps.
+_GRID_SLACK = 1e-9
+
+#: One step: (f, t, y, f(t, y), h) -> y after a step of length h.
+Step = Callable[[Rhs, float, np.ndarray, np.ndarray, float], np.ndarray]
+
+
+def integrate_fixed(
+    step: Step,
+    dt: float,
+    event_tol: float,
+    f: Rhs,
+    t0: float,
+    y0: np.ndarray,
+    t1: float,
+    events: Sequence[StateEvent],
+    evals_per_step: int,
+) -> Segment:
+    """Integrate with a fixed step ``dt`` from ``t0`` to exactly ``t1`` or the first event."""
+    span = t1 - t0
+    if y0.size == 0:  # everything locked: the state is frozen
+        return Segment(t=np.array([t0, t1]), y=np.zeros((2, 0)), rhs_evals=0)
+    steps = max(math.ceil(span / dt - _GRID_SLACK), 0) if span > 0 else 0
+    t = np.empty(steps + 1)
+    y = np.empty((steps + 1, y0.size))
+    t[0] = t0
+    y[0] = y0
+    evals = 0
+    g_prev = [e.g(t0, y0) for e in events]
+    for k in range(steps):
+        tk = t[k]
+        t_next = t1 if k == steps - 1 else t0 + (k + 1) * dt
+        yk = y[k]
+        fk = f(tk, yk)
+        y[k + 1] = step(f, tk, yk, fk, t_next - tk)
+        t[k + 1] = t_next
+        evals += evals_per_step
+        if not events:
+            continue
+        g_next = [e.g(t_next, y[k + 1]) for e in events]
+        fired = [i for i, e in enumerate(events) if e.crossed(g_prev[i], g_next[i])]
+        if fired:
+
+            def along(tau: float) -> np.ndarray:
+                nonlocal evals
+                evals += evals_per_step - 1
+                return step(f, tk, yk, fk, tau)
+
+            tau, index = locate(events, fired, tk, yk, along, t_next - tk, event_tol)
+            t[k + 1] = tk + tau
+            y[k + 1] = along(tau)
+            return Segment(t=t[: k + 2], y=y[: k + 2], rhs_evals=evals, event=index)
+        g_prev = g_next
+    return Segment(t=t, y=y, rhs_evals=evals)
+
+
+def locate(
+    events: Sequence[StateEvent],
+    fired: list[int],
+    tk: float,
+    yk: np.ndarray,
+    along: Callable[[float], np.ndarray],
+    h: float,
+    event_tol: float,
+) -> tuple[float, int]:
+    """Earliest root in (0, h] among the fired events, on the continuous solution ``along``.
+
+    Returns:
+        ``(tau, index)``: the offset from ``tk`` [s], on the side where the crossing has
+        happened, and the event's index.
+    """
+    best: tuple[float, int] | None = None
+    for i in fired:
+        event = events[i]
+
+        def phi(tau: float, event: StateEvent = event) -> float:
+            return event.g(tk + tau, along(tau))
+
+        g0 = event.g(tk, yk)
+        g1 = phi(h)
+        if g1 == 0.0:
+            tau = h
+        else:
+            tau = scipy.optimize.brentq(phi, 0.0, h, xtol=event_tol, rtol=1e-15)
+            while not event.crossed(g0, phi(tau)) and tau < h:
+                tau = min(h, tau + event_tol)
+        if best is None or tau < best[0]:
+            best = (tau, i)
+    assert best is not None
+    return best
