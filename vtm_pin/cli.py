@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shutil
@@ -15,7 +16,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from .analysis import compute_energy_momentum
-from .exceptions import VtmError
+from .exceptions import ScenarioError, VtmError
+from .integrators import INTEGRATORS
 from .plotting import (
     plot_brake_states,
     plot_energy,
@@ -24,8 +26,14 @@ from .plotting import (
     plot_momenta,
     plot_tcp_path,
 )
-from .report import build_summary, format_stopping, format_summary, write_trajectory
-from .scenario import load_scenario, run_scenario
+from .report import (
+    build_summary,
+    format_stopping,
+    format_summary,
+    integrator_settings,
+    write_trajectory,
+)
+from .scenario import build_integrator, load_scenario, run_scenario
 from .simulation import SimulationResult
 from .stopping import compute_stopping_report
 from .transitions import TRANSITIONS
@@ -81,12 +89,47 @@ def _parser() -> argparse.ArgumentParser:
         default=[],
         help="also run with this rule and overlay it in the plots (repeatable), e.g. naive",
     )
+    run.add_argument(
+        "--integrator",
+        choices=sorted(INTEGRATORS),
+        default=None,
+        help="integrator, overriding the scenario's: rk4 or euler (fixed step --dt) or dop853 "
+        "(adaptive, --rtol / --atol)",
+    )
+    run.add_argument("--dt", type=float, default=None, help="fixed step of rk4 / euler [s]")
+    run.add_argument("--rtol", type=float, default=None, help="dop853 relative tolerance [-]")
+    run.add_argument(
+        "--atol", type=float, default=None, help="dop853 absolute tolerance [rad, rad/s]"
+    )
     run.set_defaults(func=_run)
     return parser
 
 
 def _run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
+    overrides = {
+        key: value
+        for key, value in [
+            ("method", args.integrator),
+            ("dt", args.dt),
+            ("rtol", args.rtol),
+            ("atol", args.atol),
+        ]
+        if value is not None
+    }
+    if overrides:
+        spec = {"method": overrides.get("method", scenario.integrator.name), **overrides}
+        if spec["method"] == scenario.integrator.name and "method" not in overrides:
+            spec = {**integrator_settings(scenario.integrator), **overrides}
+        for key, value in spec.items():
+            if key != "method" and not value > 0:
+                raise ScenarioError("command line", f"--{key}", f"{value} is not > 0")
+        try:
+            integrator = build_integrator(spec, scenario.duration, "command line")
+        except ScenarioError as exc:
+            option = "--" + exc.key.split(".")[-1]
+            raise ScenarioError("command line", option, exc.problem) from exc
+        scenario = dataclasses.replace(scenario, integrator=integrator)
     out = args.out if args.out is not None else Path("results") / scenario.name
     if out.exists() and not out.is_dir():
         print(f"vtm-pin: error: --out '{out}' exists and is not a folder", file=sys.stderr)

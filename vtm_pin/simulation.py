@@ -18,7 +18,7 @@ import numpy as np
 
 from .brakes import Brake, BrakeMode
 from .constraints import lock_jacobian
-from .dynamics import compute_M
+from .dynamics import compute_energy, compute_M
 from .exceptions import SimulationError
 from .integrators import Integrator
 from .phase import DriveLaw, Phase
@@ -364,11 +364,7 @@ def simulate(
         )
         rhs_evals += segment.rhs_evals
         steps += segment.t.size - 1
-        if not np.all(np.isfinite(segment.y)):
-            raise SimulationError(
-                f"State became non-finite between t = {t} s and {t_end} s; "
-                f"reduce the step size of {integrator.name}"
-            )
+        _check_energy(h, phase, segment.y, segment.t, integrator)
         k, size = phase.k, segment.t.size
         block_q = np.empty((size, n))
         block_v = np.zeros((size, n))
@@ -423,6 +419,51 @@ def simulate(
         wall_time=wall_time,
         stop=stop,
     )
+
+
+#: Largest energy-balance error of one interval, as a fraction of the energy it moved.
+ENERGY_TOLERANCE = 0.05
+
+
+def _check_energy(
+    h: _Hybrid, phase: Phase, y: np.ndarray, t: np.ndarray, integrator: Integrator
+) -> None:
+    """Raise if an interval broke the energy balance: the step is too large for the dynamics.
+
+    Between events T + V changes only by the brakes' and drives' work; a step far too large
+    makes it grow or collapse (or go non-finite) long before anything else is visibly wrong.
+    """
+    if not np.all(np.isfinite(y)):
+        raise SimulationError(
+            f"State became non-finite between t = {t[0]} s and {t[-1]} s with "
+            f"{_settings(integrator)}: the step is too large for these dynamics; reduce it"
+        )
+    if phase.k == 0:
+        return
+    energies, works = [], []
+    for row in (y[0], y[-1]):
+        q, v = phase.topology.merge(row[: 2 * phase.k])
+        kinetic, potential = compute_energy(h.robot.model, h.data, q, v)
+        energies.append((kinetic, potential))
+        works.append(phase.unpack_extras(row, h.extras)[:2])
+    (t0, v0), (t1, v1) = energies
+    brake = works[1][0] - works[0][0]
+    drive = works[1][1] - works[0][1]
+    residual = (t0 + v0) - (t1 + v1) - (brake - drive)
+    moved = max(t0, t1, abs(v1 - v0), abs(brake), abs(drive))
+    if moved > 1e-12 and abs(residual) > ENERGY_TOLERANCE * moved:
+        raise SimulationError(
+            f"Energy balance broken by {residual:.3g} J ({100 * abs(residual) / moved:.0f} % of "
+            f"the energy moved) between t = {t[0]:g} s and {t[-1]:g} s with "
+            f"{_settings(integrator)}: the step is too large for these dynamics; reduce it"
+        )
+
+
+def _settings(integrator: Integrator) -> str:
+    dt = getattr(integrator, "dt", None)
+    if dt is not None:
+        return f"{integrator.name} dt = {dt:g} s"
+    return f"{integrator.name} rtol = {getattr(integrator, 'rtol', float('nan')):g}"
 
 
 def _time_events(

@@ -38,7 +38,7 @@ class SemiImplicitEuler:
         events: Sequence[StateEvent] = (),
         n_q: int = 0,
     ) -> Segment:
-        """Integrate from ``t0`` to ``t1`` [s]; y[:n_q] are positions whose rates are y[n_q:2 n_q]."""
+        """Integrate from ``t0`` to ``t1`` [s]; y[:n_q] are positions, y[n_q:2 n_q] their rates."""
 
         def step(f: Rhs, t: float, y: np.ndarray, fy: np.ndarray, h: float) -> np.ndarray:
             out = y + h * fy

@@ -1,5 +1,4 @@
-"""Shared driver of the fixed-step methods: a step grid that lands on the interval end, and
-state events located on the step itself.
+"""Fixed-step driver: a step grid landing on the interval end, state events on the step itself.
 
 A one-step method's step of length tau from (t_k, y_k) is a continuous function y(tau) of the
 method's own order, so g(t_k + tau, y(tau)) = 0 is solved for tau with Brent's method to
@@ -59,7 +58,9 @@ def integrate_fixed(
         fired = [i for i, e in enumerate(events) if e.crossed(g_prev[i], g_next[i])]
         if fired:
 
-            def along(tau: float) -> np.ndarray:
+            def along(
+                tau: float, tk: float = tk, yk: np.ndarray = yk, fk: np.ndarray = fk
+            ) -> np.ndarray:
                 nonlocal evals
                 evals += evals_per_step - 1
                 return step(f, tk, yk, fk, tau)
