@@ -421,8 +421,9 @@ def simulate(
     )
 
 
-#: Largest energy-balance error of one interval, as a fraction of the energy it moved.
-ENERGY_TOLERANCE = 0.05
+#: Largest energy-balance error of one interval, as a fraction of the energy it moved. A
+#: blow-up detector, not an accuracy monitor: the balance residual is in summary.json.
+ENERGY_TOLERANCE = 0.1
 
 
 def _check_energy(
@@ -441,16 +442,19 @@ def _check_energy(
     if phase.k == 0:
         return
     energies, works = [], []
-    for row in (y[0], y[-1]):
+    rows = np.unique(np.linspace(0, len(y) - 1, min(len(y), 33)).astype(int))
+    for row in y[rows]:
         q, v = phase.topology.merge(row[: 2 * phase.k])
-        kinetic, potential = compute_energy(h.robot.model, h.data, q, v)
-        energies.append((kinetic, potential))
+        energies.append(compute_energy(h.robot.model, h.data, q, v))
         works.append(phase.unpack_extras(row, h.extras)[:2])
-    (t0, v0), (t1, v1) = energies
-    brake = works[1][0] - works[0][0]
-    drive = works[1][1] - works[0][1]
+    (t0, v0), (t1, v1) = energies[0], energies[-1]
+    brake = works[-1][0] - works[0][0]
+    drive = works[-1][1] - works[0][1]
     residual = (t0 + v0) - (t1 + v1) - (brake - drive)
-    moved = max(t0, t1, abs(v1 - v0), abs(brake), abs(drive))
+    # Energy moved: the largest kinetic energy and potential change seen (33 samples), work.
+    kinetic = max(e[0] for e in energies)
+    potential = max(e[1] for e in energies) - min(e[1] for e in energies)
+    moved = max(kinetic, potential, abs(brake), abs(drive))
     if moved > 1e-12 and abs(residual) > ENERGY_TOLERANCE * moved:
         raise SimulationError(
             f"Energy balance broken by {residual:.3g} J ({100 * abs(residual) / moved:.0f} % of "

@@ -16,6 +16,9 @@ import numpy as np
 from ..constraints import orthogonal_complement
 from ..exceptions import TransitionError
 
+#: Largest accepted |J+ v+| of a solve, relative to |v-| (beyond it the result is garbage).
+MAX_RESIDUAL = 1e-6
+
 
 @dataclass(frozen=True)
 class TransitionResult:
@@ -88,6 +91,13 @@ def finish(
     J = np.vstack([J1, J2])
     v_plus = np.array(v_plus, dtype=float)
     residual = float(np.max(np.abs(J @ v_plus), initial=0.0))
+    scale = float(np.max(np.abs(v_minus), initial=0.0))
+    if not np.all(np.isfinite(v_plus)) or residual > MAX_RESIDUAL * max(scale, 1e-300):
+        raise TransitionError(
+            f"Transition is numerically unreliable: |J+ v+| = {residual:.3g} for |v-| = "
+            f"{scale:.3g} (cond(M) = {np.linalg.cond(M):.3g}); the mass matrix is too "
+            "ill-conditioned for this lock"
+        )
     for row in J:
         nonzero = np.flatnonzero(row)
         if nonzero.size == 1 and row[nonzero[0]] == 1.0:
