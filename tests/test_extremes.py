@@ -24,7 +24,10 @@ V0 = np.array([1.0, -2.0, 1.5])  # [rad/s]
 METHODS = [RK4(1e-3), SemiImplicitEuler(1e-4), DOP853(1e-10, 1e-12)]
 
 
-def run(events, integrator=RK4(1e-4), duration=1.5, r=None, v0=V0, q0=Q0):
+DEFAULT = RK4(1e-4)
+
+
+def run(events, integrator=DEFAULT, duration=1.5, r=None, v0=V0, q0=Q0):
     return simulate(r or robot("planar_3r"), q0, v0, duration, events, integrator)
 
 

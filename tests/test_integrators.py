@@ -131,9 +131,9 @@ def test_long_horizon_energy_drift_per_method():
     symplectic only for a constant mass matrix; with M(q) its energy drifts at O(dt): ~125 J
     at dt = 5e-4 and ~52 J at dt = 2.5e-4 after 100 s.
     """
-    t, drift = energy_drift(RK4(1e-3), 100.0)
+    _, drift = energy_drift(RK4(1e-3), 100.0)
     assert drift[-1] < 1e-4
-    t, drift = energy_drift(DOP853(1e-10, 1e-12), 100.0)
+    _, drift = energy_drift(DOP853(1e-10, 1e-12), 100.0)
     assert drift.max() < 1e-4
     finals = [energy_drift(SemiImplicitEuler(dt), 100.0)[1][-1] for dt in (5e-4, 2.5e-4)]
     assert 1.5 < finals[0] / finals[1] < 3.0  # first order in dt
