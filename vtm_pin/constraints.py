@@ -53,6 +53,12 @@ def orthogonal_complement(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     m, n = J.shape
     if m == 0:
         return np.eye(n), np.arange(n)
+    rows, cols = np.nonzero(J)
+    if rows.size == m and np.array_equal(rows, np.arange(m)) and np.all(J[rows, cols] == 1.0):
+        if np.unique(cols).size < m:
+            raise TransitionError("Constraint Jacobian locks a joint twice: redundant constraints")
+        s = np.setdiff1d(np.arange(n), cols)  # joint locks: F selects the free joints
+        return np.eye(n)[:, s], s
     _, _, piv = scipy.linalg.qr(J, pivoting=True, mode="economic")
     p = np.sort(piv[:m])
     s = np.sort(piv[m:])

@@ -424,6 +424,7 @@ def simulate(
 #: Largest energy-balance error of one interval, as a fraction of the energy it moved. A
 #: blow-up detector, not an accuracy monitor: the balance residual is in summary.json.
 ENERGY_TOLERANCE = 0.1
+_ENERGY_SAMPLES = 9  # states per interval at which the energy is evaluated
 
 
 def _check_energy(
@@ -442,7 +443,7 @@ def _check_energy(
     if phase.k == 0:
         return
     energies, works = [], []
-    rows = np.unique(np.linspace(0, len(y) - 1, min(len(y), 33)).astype(int))
+    rows = np.unique(np.linspace(0, len(y) - 1, min(len(y), _ENERGY_SAMPLES)).astype(int))
     for row in y[rows]:
         q, v = phase.topology.merge(row[: 2 * phase.k])
         energies.append(compute_energy(h.robot.model, h.data, q, v))
@@ -451,7 +452,7 @@ def _check_energy(
     brake = works[-1][0] - works[0][0]
     drive = works[-1][1] - works[0][1]
     residual = (t0 + v0) - (t1 + v1) - (brake - drive)
-    # Energy moved: the largest kinetic energy and potential change seen (33 samples), work.
+    # Energy moved: the largest kinetic energy and potential change seen, and the work done.
     kinetic = max(e[0] for e in energies)
     potential = max(e[1] for e in energies) - min(e[1] for e in energies)
     moved = max(kinetic, potential, abs(brake), abs(drive))

@@ -37,6 +37,7 @@ class Topology:
             self.model = model
         self.data = self.model.createData()
         self._tau = np.zeros(self.free.size)
+        self._k = int(self.free.size)
 
     @property
     def n_free(self) -> int:
@@ -59,8 +60,10 @@ class Topology:
 
     def rhs(self, t: float, y: np.ndarray) -> np.ndarray:
         """Time derivative of the free state, (v_f, a_f) from ABA on the reduced model."""
-        k = self.n_free
+        k = self._k
+        out = np.empty(2 * k)
         if k == 0:
-            return np.zeros(0)
-        a = pin.aba(self.model, self.data, y[:k], y[k:], self._tau)
-        return np.concatenate([y[k:], a])
+            return out
+        out[:k] = y[k:]
+        out[k:] = pin.aba(self.model, self.data, y[:k], y[k:], self._tau)
+        return out

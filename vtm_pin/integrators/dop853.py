@@ -25,6 +25,7 @@ _S = coef.N_STAGES  # 12 stages; K[12] is f at the step end (first same as last)
 _A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
 _E3, _E5, _D = coef.E3, coef.E5, coef.D
 _A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
+_STAGES = [(s, np.ascontiguousarray(_A[s, :s]), float(_C[s])) for s in range(1, _S)]
 
 
 @dataclass(frozen=True)
@@ -126,8 +127,8 @@ class DOP853:
     ) -> tuple[np.ndarray, np.ndarray, float]:
         """One step: new state, f at it, and the scaled error norm (<= 1 to accept)."""
         K[0] = fy
-        for s in range(1, _S):
-            K[s] = f(t + _C[s] * h, y + h * (_A[s, :s] @ K[:s]))
+        for s, a, c in _STAGES:
+            K[s] = f(t + c * h, y + h * (a @ K[:s]))
         y_new = y + h * (_B @ K[:_S])
         f_new = f(t + h, y_new)
         K[_S] = f_new
