@@ -13,6 +13,7 @@ switched on with ``eq_active``) and the ratio of wall times at equal accuracy is
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import statistics
 import sys
@@ -32,7 +33,7 @@ LADDERS = {
     "euler": [1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5],
     "dop853": [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12],
 }
-MUJOCO_DT = [1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4]
+MUJOCO_DT = [5e-2, 2.5e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4]
 TARGETS = [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10]  # [rad]
 
 
@@ -83,7 +84,10 @@ def measure_mujoco(scenario: vp.Scenario, q_ref: np.ndarray, repeats: int) -> li
         ("mujoco-soft", mujoco_reference.run_soft),
     ]:
         for dt in MUJOCO_DT:
-            runs = [run(scenario, dt) for _ in range(repeats)]
+            try:
+                runs = [run(scenario, dt) for _ in range(repeats)]
+            except ValueError:  # an event off this dt grid: MuJoCo cannot land on it
+                continue
             rows.append(
                 {
                     "method": variant,
@@ -104,7 +108,7 @@ def time_at(rows: list[dict], method: str, target: float) -> float:
     if not pts or target < pts[0][0]:
         return float("nan")
     best = float("nan")
-    for (e1, w1), (e2, w2) in zip(pts, pts[1:], strict=False):
+    for (e1, w1), (e2, w2) in itertools.pairwise(pts):
         if e1 <= target <= e2:
             s = (np.log(target) - np.log(e1)) / (np.log(e2) - np.log(e1))
             best = float(np.exp(np.log(w1) + s * (np.log(w2) - np.log(w1))))
@@ -177,7 +181,7 @@ def main(argv: list[str] | None = None) -> None:
                 f"{r['rhs_evals']:>10d} {r['steps']:>7d} {1e3 * r['wall_time']:>10.3f}"
             )
         methods = list(dict.fromkeys(r["method"] for r in rows))
-        print(f"\nwall time [ms] to reach an error <= target (log-log interpolated):")
+        print("\nwall time [ms] to reach an error <= target (log-log interpolated):")
         print(f"{'target':>8} " + " ".join(f"{m:>13}" for m in methods) + "   ratio")
         ratios = {}
         for target in TARGETS:
