@@ -1,0 +1,117 @@
+"""Cost of one lock transition per formulation, and of one right-hand side, for n up to 200.
+
+For an n-link chain (``vtm_pin.chain.build_chain``) at a random state, every other joint is
+already locked (m1 = n // 2, the persistent constraints J1) and one more joint locks (m2 = 1).
+Timed (median of repeats): ``kkt``, ``projected``, ``minimal`` given M, and Pinocchio's
+``impulseDynamics`` (which runs its own CRBA) with J+; and one free-coordinate right-hand side
+by ABA on the reduced model against CRBA + RNEA + a Cholesky solve of M_ff on the full one.
+The paper's complexity statements are the hypothesis: kkt solves n + m1 + m2 equations,
+projected n + m2 plus an m1 x m1 inverse (and here M^-1 for the projector), minimal
+n - m1 + m2 plus an m1 x m1 inverse.
+
+    python benchmarks/scaling.py [--spatial] [--out benchmarks/out]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+from matplotlib.figure import Figure
+
+from vtm_pin import TRANSITIONS, compute_forward_dynamics, compute_M
+from vtm_pin.chain import build_chain
+from vtm_pin.constraints import lock_jacobian
+from vtm_pin.topology import Topology
+
+SIZES = [3, 6, 12, 25, 50, 100, 200]
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def median_time(fn: Callable[[], object], budget: float = 0.2) -> float:
+    """Median wall time [s] of fn over repeats filling about ``budget`` seconds."""
+    fn()
+    start = time.perf_counter()
+    fn()
+    once = max(time.perf_counter() - start, 1e-7)
+    repeats = int(min(200, max(5, budget / once)))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--spatial", action="store_true", help="alternate axes y, x, z")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+    rows = []
+    for n in SIZES:
+        robot = build_chain(n, spatial=args.spatial)
+        model = robot.model
+        data = model.createData()
+        q = rng.uniform(-0.5, 0.5, n)
+        old = list(range(0, n - 1, 2))[: n // 2]
+        new = [n - 1] if (n - 1) not in old else [n - 2]
+        v = rng.uniform(-1, 1, n)
+        v[old] = 0.0
+        J1, J2 = lock_jacobian(n, old), lock_jacobian(n, new)
+        J = np.vstack([J1, J2])
+        M = compute_M(model, data, q)
+        row = {"n": n, "m1": len(old), "m2": len(new)}
+        for rule in ("kkt", "projected", "minimal"):
+            row[rule] = median_time(lambda rule=rule: TRANSITIONS[rule](M, J1, J2, v))
+        row["impulseDynamics"] = median_time(
+            lambda: pin.impulseDynamics(model, data, q, v, J, 0.0, 0.0)
+        )
+        row["crba"] = median_time(lambda: compute_M(model, data, q))
+        topology = Topology(robot, old, q)
+        y = topology.split(q, v)
+        row["rhs_reduced_aba"] = median_time(lambda: topology.rhs(0.0, y))
+        tau = np.zeros(n)
+        row["rhs_full_crba"] = median_time(
+            lambda: compute_forward_dynamics(model, data, q, v, tau, old)
+        )
+        rows.append(row)
+        print(f"n = {n}: done", flush=True)
+    keys = [
+        "kkt",
+        "projected",
+        "minimal",
+        "impulseDynamics",
+        "crba",
+        "rhs_reduced_aba",
+        "rhs_full_crba",
+    ]
+    kind = "spatial" if args.spatial else "planar"
+    print(f"\n{kind} chain, m1 = n // 2 joints locked, m2 = 1 locking; median times [us]")
+    print(f"{'n':>5} {'m1':>4} " + " ".join(f"{k:>16}" for k in keys))
+    for row in rows:
+        print(f"{row['n']:>5} {row['m1']:>4} " + " ".join(f"{1e6 * row[k]:>16.1f}" for k in keys))
+    fig = Figure(figsize=(8, 5), layout="constrained")
+    ax = fig.add_subplot()
+    ns = [r["n"] for r in rows]
+    for k in keys:
+        ax.loglog(ns, [1e6 * r[k] for r in rows], "o-", label=k)
+    ax.set_xlabel("number of joints n")
+    ax.set_ylabel("median time [us]")
+    ax.set_title(f"Cost of one transition and one right-hand side ({kind} chain, m1 = n/2)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize="small")
+    path = args.out / f"scaling_{kind}.png"
+    fig.savefig(path, dpi=120)
+    print(f"\nwrote {path}")
+
+
+if __name__ == "__main__":
+    main()
