@@ -48,6 +48,36 @@ def median_time(fn: Callable[[], object], budget: float = 0.2) -> float:
     return statistics.median(times)
 
 
+def measure_size(n: int, spatial: bool, rng: np.random.Generator) -> dict[str, float]:
+    """Median times [s] of the transitions and right-hand sides for an n-link chain."""
+    robot = build_chain(n, spatial=spatial)
+    model = robot.model
+    data = model.createData()
+    q = rng.uniform(-0.5, 0.5, n)
+    old = list(range(0, n - 1, 2))[: n // 2]
+    new = [n - 1] if (n - 1) not in old else [n - 2]
+    v = rng.uniform(-1, 1, n)
+    v[old] = 0.0
+    J1, J2 = lock_jacobian(n, old), lock_jacobian(n, new)
+    J = np.vstack([J1, J2])
+    M = compute_M(model, data, q)
+    row: dict[str, float] = {"n": n, "m1": len(old), "m2": len(new)}
+    for rule in ("kkt", "projected", "minimal"):
+        row[rule] = median_time(lambda rule=rule: TRANSITIONS[rule](M, J1, J2, v))
+    row["impulseDynamics"] = median_time(
+        lambda: pin.impulseDynamics(model, data, q, v, J, 0.0, 0.0)
+    )
+    row["crba"] = median_time(lambda: compute_M(model, data, q))
+    topology = Topology(robot, old, q)
+    y = topology.split(q, v)
+    row["rhs_reduced_aba"] = median_time(lambda: topology.rhs(0.0, y))
+    tau = np.zeros(n)
+    row["rhs_full_crba"] = median_time(
+        lambda: compute_forward_dynamics(model, data, q, v, tau, old)
+    )
+    return row
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spatial", action="store_true", help="alternate axes y, x, z")
@@ -57,32 +87,7 @@ def main(argv: list[str] | None = None) -> None:
     rng = np.random.default_rng(0)
     rows = []
     for n in SIZES:
-        robot = build_chain(n, spatial=args.spatial)
-        model = robot.model
-        data = model.createData()
-        q = rng.uniform(-0.5, 0.5, n)
-        old = list(range(0, n - 1, 2))[: n // 2]
-        new = [n - 1] if (n - 1) not in old else [n - 2]
-        v = rng.uniform(-1, 1, n)
-        v[old] = 0.0
-        J1, J2 = lock_jacobian(n, old), lock_jacobian(n, new)
-        J = np.vstack([J1, J2])
-        M = compute_M(model, data, q)
-        row = {"n": n, "m1": len(old), "m2": len(new)}
-        for rule in ("kkt", "projected", "minimal"):
-            row[rule] = median_time(lambda rule=rule: TRANSITIONS[rule](M, J1, J2, v))
-        row["impulseDynamics"] = median_time(
-            lambda: pin.impulseDynamics(model, data, q, v, J, 0.0, 0.0)
-        )
-        row["crba"] = median_time(lambda: compute_M(model, data, q))
-        topology = Topology(robot, old, q)
-        y = topology.split(q, v)
-        row["rhs_reduced_aba"] = median_time(lambda: topology.rhs(0.0, y))
-        tau = np.zeros(n)
-        row["rhs_full_crba"] = median_time(
-            lambda: compute_forward_dynamics(model, data, q, v, tau, old)
-        )
-        rows.append(row)
+        rows.append(measure_size(n, args.spatial, rng))
         print(f"n = {n}: done", flush=True)
     keys = [
         "kkt",

@@ -37,18 +37,19 @@ def build_chain(n: int, spatial: bool = False) -> Robot:
         np.diag([transverse, transverse, axial]),
     )
     parent = 0
+    body_frame = 0  # the universe frame
     placement = pin.SE3.Identity()
     names = []
     for i in range(n):
         joint = axes[i % 3] if spatial else axes[0]
         name = f"joint{i + 1}"
         parent = model.addJoint(parent, joint, placement, name)
+        joint_frame = model.addJointFrame(parent, body_frame)
         model.appendBodyToJoint(parent, inertia, pin.SE3.Identity())
-        model.addFrame(pin.Frame(f"link{i + 1}", parent, 0, pin.SE3.Identity(), pin.BODY))
+        body_frame = model.addBodyFrame(f"link{i + 1}", parent, pin.SE3.Identity(), joint_frame)
         placement = pin.SE3(np.eye(3), np.array([0.0, 0.0, -LINK_LENGTH]))
         names.append(name)
-    tip = pin.Frame("tip", parent, 0, placement, pin.OP_FRAME)
-    model.addFrame(tip)
+    model.addFrame(pin.Frame("tip", parent, body_frame, placement, pin.OP_FRAME))
     kind = "spatial" if spatial else "planar"
     return Robot(
         name=f"{kind}_chain_{n}",
