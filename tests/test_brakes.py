@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import robot
+from conftest import RESLIP_BRAKE, RESLIP_KINDS, robot, run_reslip
 
 from vtm_pin import RK4, LockEvent, compute_energy_momentum, compute_M, simulate
 from vtm_pin.brakes import Brake, BrakeMode
@@ -14,9 +14,6 @@ from vtm_pin.topology import Topology
 
 Q0 = np.array([0.0, 1.2, 0.0])  # [rad]
 V0 = np.array([2.0, 0.0, 0.0])  # [rad/s]
-# Built to trigger every transition of the state machine on joint 1 of the pendulum:
-# reverse, reverse, reverse, stick, slip, stick, slip (static 400 N m < the swinging load).
-RESLIP_BRAKE = Brake("joint1", sliding_torque=300.0, static_torque=400.0)
 
 
 def run_pendulum(brakes, duration=3.0, dt=1e-4, stop=None, events=(), event_tol=1e-14, v0=V0):
@@ -117,18 +114,8 @@ def test_growing_brake_torque_converges_to_ideal_jump():
 
 
 def test_state_machine_sticks_reverses_and_slips():
-    result = run_pendulum([RESLIP_BRAKE])
-    kinds = [e.kind for e in result.brake_events]
-    assert kinds[:8] == [
-        "engage",
-        "reverse",
-        "reverse",
-        "reverse",
-        "stick",
-        "slip",
-        "stick",
-        "slip",
-    ]
+    result = run_reslip(RK4(1e-4))
+    assert [e.kind for e in result.brake_events][:8] == RESLIP_KINDS
     static = RESLIP_BRAKE.static(0.0)
     for event in result.brake_events:
         if event.kind in ("stick", "reverse"):

@@ -1,11 +1,9 @@
 import numpy as np
 import pytest
-from conftest import robot
+from conftest import RESLIP_KINDS, robot, run_reslip
 
 from vtm_pin import RK4, LockEvent, compute_energy_momentum, simulate
-from vtm_pin.brakes import Brake
 from vtm_pin.integrators import DOP853, SemiImplicitEuler
-from vtm_pin.stop import Stop
 
 Q0 = np.full(3, np.pi / 6)  # [rad]
 PAPER = [LockEvent(0.8, ("joint2",)), LockEvent(1.3, ("joint3",))]
@@ -68,50 +66,18 @@ def test_dop853_error_follows_its_tolerance(reference):
 @pytest.mark.parametrize("integrator", [RK4(1e-4), DOP853(1e-10, 1e-12)], ids=lambda i: i.name)
 def test_state_events_on_dense_output(integrator):
     """The brake state machine runs the same with RK4 re-stepping and DOP853 dense output."""
-    brake = Brake("joint1", sliding_torque=300.0, static_torque=400.0)
-    result = simulate(
-        robot("planar_3r"),
-        np.array([0.0, 1.2, 0.0]),
-        np.array([2.0, 0.0, 0.0]),
-        3.0,
-        [],
-        integrator,
-        "kkt",
-        [brake],
-        Stop(0.0),
-    )
-    kinds = [e.kind for e in result.brake_events]
-    assert kinds[:8] == [
-        "engage",
-        "reverse",
-        "reverse",
-        "reverse",
-        "stick",
-        "slip",
-        "stick",
-        "slip",
-    ]
+    result = run_reslip(integrator)
+    assert [e.kind for e in result.brake_events][:8] == RESLIP_KINDS
     for event in result.brake_events:
         if event.kind in ("stick", "reverse"):
             assert abs(event.v) <= 1e-12
 
 
 def test_state_event_times_agree_across_methods():
-    brake = Brake("joint1", sliding_torque=300.0, static_torque=400.0)
-    times = []
-    for integrator in (RK4(1e-4), DOP853(1e-11, 1e-13)):
-        result = simulate(
-            robot("planar_3r"),
-            np.array([0.0, 1.2, 0.0]),
-            np.array([2.0, 0.0, 0.0]),
-            2.0,
-            [],
-            integrator,
-            "kkt",
-            [brake],
-            Stop(0.0),
-        )
-        times.append(np.array([e.t for e in result.brake_events]))
+    times = [
+        np.array([e.t for e in run_reslip(integrator, 2.0).brake_events])
+        for integrator in (RK4(1e-4), DOP853(1e-11, 1e-13))
+    ]
     # Measured 2e-12 s: both methods are accurate far beyond the 1e-10 s asked for.
     np.testing.assert_allclose(times[0], times[1], rtol=0, atol=1e-10)
 
