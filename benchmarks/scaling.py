@@ -27,6 +27,8 @@ from matplotlib.figure import Figure
 from vtm_pin import TRANSITIONS, compute_forward_dynamics, compute_M
 from vtm_pin.chain import build_chain
 from vtm_pin.constraints import lock_jacobian
+from vtm_pin.holonomic import FrameConstraint, compute_kinematics, stack
+from vtm_pin.simulation import M_weighted_correction
 from vtm_pin.topology import Topology
 
 SIZES = [3, 6, 12, 25, 50, 100, 200]
@@ -48,8 +50,14 @@ def median_time(fn: Callable[[], object], budget: float = 0.2) -> float:
     return statistics.median(times)
 
 
-def measure_size(n: int, spatial: bool, rng: np.random.Generator) -> dict[str, float]:
-    """Median times [s] of the transitions and right-hand sides for an n-link chain."""
+def measure_size(
+    n: int, spatial: bool, rng: np.random.Generator, general: bool = False
+) -> dict[str, float]:
+    """Median times [s] of the transitions and right-hand sides for an n-link chain.
+
+    With ``general``, J1 is not made of unit rows: the chain's tip is docked (point, 3 rows;
+    pose, 6 rows, from n = 12 on) and joints are locked until m1 = n // 2 rows.
+    """
     robot = build_chain(n, spatial=spatial)
     model = robot.model
     data = model.createData()
@@ -57,11 +65,19 @@ def measure_size(n: int, spatial: bool, rng: np.random.Generator) -> dict[str, f
     old = list(range(0, n - 1, 2))[: n // 2]
     new = [n - 1] if (n - 1) not in old else [n - 2]
     v = rng.uniform(-1, 1, n)
-    v[old] = 0.0
-    J1, J2 = lock_jacobian(n, old), lock_jacobian(n, new)
+    J1 = lock_jacobian(n, old)
+    if general:
+        dock = FrameConstraint("dock", "tip", None, "pose" if n >= 12 else "point")
+        dock = dock.latch(model, data, q)
+        compute_kinematics(model, data, q, v)
+        _, J_dock, _ = stack((dock,), model, data)
+        old = old[: max(0, n // 2 - J_dock.shape[0])]
+        J1 = np.vstack([J_dock, lock_jacobian(n, old)])
+    v = v - M_weighted_correction(compute_M(model, data, q), J1, v)
+    J2 = lock_jacobian(n, new)
     J = np.vstack([J1, J2])
     M = compute_M(model, data, q)
-    row: dict[str, float] = {"n": n, "m1": len(old), "m2": len(new)}
+    row: dict[str, float] = {"n": n, "m1": J1.shape[0], "m2": len(new)}
     for rule in ("kkt", "projected", "minimal"):
         row[rule] = median_time(lambda rule=rule: TRANSITIONS[rule](M, J1, J2, v))
     row["impulseDynamics"] = median_time(
@@ -81,13 +97,16 @@ def measure_size(n: int, spatial: bool, rng: np.random.Generator) -> dict[str, f
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spatial", action="store_true", help="alternate axes y, x, z")
+    parser.add_argument(
+        "--general", action="store_true", help="J1 = tip docking + locks (non-trivial rows)"
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(0)
     rows = []
-    for n in SIZES:
-        rows.append(measure_size(n, args.spatial, rng))
+    for n in [n for n in SIZES if n >= 12] if args.general else SIZES:
+        rows.append(measure_size(n, args.spatial, rng, args.general))
         print(f"n = {n}: done", flush=True)
     keys = [
         "kkt",
@@ -98,8 +117,8 @@ def main(argv: list[str] | None = None) -> None:
         "rhs_reduced_aba",
         "rhs_full_crba",
     ]
-    kind = "spatial" if args.spatial else "planar"
-    print(f"\n{kind} chain, m1 = n // 2 joints locked, m2 = 1 locking; median times [us]")
+    kind = ("spatial" if args.spatial else "planar") + ("_docked" if args.general else "")
+    print(f"\n{kind} chain, m1 = n // 2 persistent rows, m2 = 1 locking; median times [us]")
     print(f"{'n':>5} {'m1':>4} " + " ".join(f"{k:>16}" for k in keys))
     for row in rows:
         print(f"{row['n']:>5} {row['m1']:>4} " + " ".join(f"{1e6 * row[k]:>16.1f}" for k in keys))

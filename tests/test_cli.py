@@ -107,3 +107,49 @@ def test_bad_brake_writes_nothing(tmp_path, capsys):
     assert "static torque 1 N m is below the sliding torque 5.0 N m" in err
     assert err.count("\n") == 1
     assert [p.name for p in tmp_path.iterdir()] == ["bad.yaml"]
+
+
+def test_redundant_constraint_is_one_line_and_no_output(tmp_path, capsys):
+    path = tmp_path / "loop.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "robot": "planar_fivebar",
+                "initial": {"q": [-0.4, 0.57978007700581935, 0.2, 0.16334925102132061]},
+                "duration": 0.2,
+                "integrator": {"method": "dop853"},
+                "events": [
+                    {
+                        "t": 0.1,
+                        "activate": [{"type": "loop", "frame_a": "tip_l", "frame_b": "tip_r"}],
+                    }
+                ],
+            }
+        )
+    )
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert err == (
+        "vtm-pin: error: Constraints are redundant: 'loop0.y' depends on the others (rank 2 "
+        "of 3 rows); drop them (a planar loop keeps axes [x, z])\n"
+    )
+    assert [p.name for p in tmp_path.iterdir()] == ["loop.yaml"]
+
+
+def test_closed_loop_run_writes_drift_plot_and_warns_once(tmp_path, capsys):
+    path = tmp_path / "fivebar.yaml"
+    raw = yaml.safe_load((SCENARIOS / "fivebar_lock.yaml").read_text())
+    raw["initial"]["v"] = [1.0, 0.0, 0.0, 0.0]  # not on the constraint: projected, with a warning
+    raw["duration"] = 1.0
+    path.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("vtm-pin: warning: Initial state moved onto the constraints by up to")
+    assert err.count("\n") == 1
+    assert (out / "constraint_drift.png").exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["constraints"] == ["loop"]
+    assert summary["constraint_drift"]["position_max"] < 1e-8
+    assert summary["events"][0]["impulse_rows"] == ["lock joint_r1"]
+    assert summary["events"][0]["impulse_persistent_rows"] == ["loop.x", "loop.z"]

@@ -9,10 +9,16 @@ from vtm_pin.scenario import SCHEMA
 README = (ROOT / "README.md").read_text()
 
 
+#: The constraint spec is documented once, under `constraints[]`; `events[].activate` reuses it.
+SHARED = SCHEMA["properties"]["constraints"]["items"]
+
+
 def schema_keys(schema, prefix=""):
     for key, sub in schema.get("properties", {}).items():
         path = f"{prefix}{key}"
         yield path
+        if sub.get("items") is SHARED and path != "constraints":
+            continue
         if sub.get("type") == "object" and "properties" in sub:
             yield from schema_keys(sub, f"{path}.")
         if sub.get("type") == "object" and isinstance(sub.get("additionalProperties"), dict):

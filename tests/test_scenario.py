@@ -32,7 +32,7 @@ def changed(path, value):
 BAD = [
     (
         changed(["colour"], "red"),
-        r"'colour': unknown key; allowed keys here: assumptions, brakes, description, ",
+        r"'colour': unknown key; allowed keys here: assumptions, brakes, constraints, ",
     ),
     (changed(["duration"], "long"), r"'duration': 'long' is not of type number"),
     (changed(["duration"], -1.0), r"'duration': -1.0 must be > 0"),
@@ -61,7 +61,7 @@ BAD = [
         r"'events\[0\].lock': joint 'joint2' locks again at t = 1.0 s but is already locked",
     ),
     (changed(["events"], [{"t": 1.0, "lock": []}]), r"'events\[0\].lock': must list at least one"),
-    (changed(["events"], [{"t": 1.0}]), r"'events\[0\]': 'lock' is missing"),
+    (changed(["events"], [{"t": 1.0}]), r"'events\[0\]': needs 'lock' or 'activate'"),
     (changed(["duration"], KeyError), r"'duration' is missing"),
     (changed(["drives"], {"knee": {"gear_ratio": 100}}), r"'drives.knee': unknown joint"),
     (
@@ -125,6 +125,6 @@ def test_every_shipped_scenario_runs(path):
     result = run_scenario(scenario)
     assert result.t[-1] == scenario.duration
     prescribed = {e.t for e in scenario.events}
-    assert prescribed <= {e.t for e in result.events if e.kind == "lock"}
+    assert prescribed <= {e.t for e in result.events if e.kind in ("lock", "activate")}
     if scenario.stop is not None:
         assert np.all(result.v[-1] == 0.0)  # every shipped e-stop ends with the arm at rest

@@ -11,6 +11,8 @@ from .dynamics import (
     compute_M,
 )
 from .exceptions import (
+    BrakeError,
+    ConstraintError,
     JointNotFound,
     RobotLoadError,
     RobotNotFound,
@@ -19,7 +21,9 @@ from .exceptions import (
     TransitionError,
     UnsupportedJoint,
     VtmError,
+    VtmWarning,
 )
+from .holonomic import FrameConstraint
 from .integrators import RK4
 from .robot import Drive, Robot, load_robot
 from .scenario import Scenario, build_scenario, load_scenario, run_scenario
@@ -30,9 +34,12 @@ from .transitions import TRANSITIONS, TransitionResult
 __all__ = [
     "RK4",
     "TRANSITIONS",
+    "BrakeError",
+    "ConstraintError",
     "Drive",
     "EnergyMomentum",
     "EventRecord",
+    "FrameConstraint",
     "JointNotFound",
     "LockEvent",
     "Robot",
@@ -47,6 +54,7 @@ __all__ = [
     "TransitionResult",
     "UnsupportedJoint",
     "VtmError",
+    "VtmWarning",
     "build_scenario",
     "compute_M",
     "compute_bias",

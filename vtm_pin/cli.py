@@ -9,6 +9,7 @@ import os
 import shutil
 import sys
 import tempfile
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,10 +17,11 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from .analysis import compute_energy_momentum
-from .exceptions import ScenarioError, VtmError
+from .exceptions import ScenarioError, VtmError, VtmWarning
 from .integrators import INTEGRATORS
 from .plotting import (
     plot_brake_states,
+    plot_constraint_drift,
     plot_energy,
     plot_joint_angles,
     plot_joint_rates,
@@ -49,11 +51,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse has printed its one-line usage error
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
-    try:
-        return int(args.func(args))
-    except VtmError as exc:
-        print(f"vtm-pin: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", VtmWarning)
+        warnings.showwarning = _show_warning
+        try:
+            return int(args.func(args))
+        except VtmError as exc:
+            print(f"vtm-pin: error: {exc}", file=sys.stderr)
+            return EXIT_ERROR
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # type: ignore[no-untyped-def]
+    """One line per warning, like the errors."""
+    print(f"vtm-pin: warning: {message}", file=sys.stderr)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -158,6 +168,8 @@ def _run(args: argparse.Namespace) -> int:
     if np.any(ratio != 1.0):
         figures["motor_angles.png"] = plot_joint_angles(runs, ratio)
         figures["motor_rates.png"] = plot_joint_rates(runs, ratio)
+    if np.any(np.isfinite(result.drift)):
+        figures["constraint_drift.png"] = plot_constraint_drift(result)
     if scenario.stop is not None:
         figures["brakes.png"] = plot_brake_states(result)
         figures["tcp_path.png"] = plot_tcp_path(stopping)

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.linalg
 
-from .exceptions import TransitionError
+from .exceptions import ConstraintError, TransitionError
 
 #: Largest condition number of J_p accepted when choosing independent coordinates.
 MAX_CONDITION = 1e12
@@ -73,3 +73,33 @@ def orthogonal_complement(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     F[s, np.arange(n - m)] = 1.0
     F[p, :] = -np.linalg.solve(Jp, J[:, s])
     return F, s
+
+
+def check_independent(J: np.ndarray, labels: Sequence[str]) -> None:
+    """Raise if the rows of J are linearly dependent, naming the redundant rows.
+
+    Args:
+        J: Stacked constraint Jacobian, shape (m, n).
+        labels: One name per row (``"lock joint2"``, ``"loop.y"``).
+
+    Raises:
+        ConstraintError: Some rows depend on the ones before them (the paper assumes
+            non-redundant constraints).
+    """
+    if J.shape[0] == 0:
+        return
+    scale = max(1.0, float(np.max(np.abs(J))))
+    kept: list[np.ndarray] = []
+    redundant = []
+    for row, label in zip(J, labels, strict=True):
+        trial = np.vstack([*kept, row])
+        if np.linalg.matrix_rank(trial, tol=1e-9 * scale) == len(kept) + 1:
+            kept.append(row)
+        else:
+            redundant.append(label)
+    if redundant:
+        raise ConstraintError(
+            f"Constraints are redundant: {', '.join(repr(r) for r in redundant)} "
+            f"depend{'s' if len(redundant) == 1 else ''} on the others (rank {len(kept)} of "
+            f"{J.shape[0]} rows); drop them (a planar loop keeps axes [x, z])"
+        )

@@ -79,3 +79,11 @@ class SimulationError(VtmError):
 
 class BrakeError(VtmError):
     """A brake or stop figure is out of range."""
+
+
+class ConstraintError(VtmError):
+    """A holonomic constraint is malformed, redundant, or cannot be met."""
+
+
+class VtmWarning(UserWarning):
+    """Something was corrected or assumed on the user's behalf; the run goes on."""

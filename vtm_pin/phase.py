@@ -15,6 +15,8 @@ import numpy as np
 import pinocchio as pin
 
 from .brakes import Brake, BrakeMode
+from .dynamics import compute_M
+from .holonomic import FrameConstraint, compute_kinematics, stack
 from .integrators import StateEvent
 from .robot import Robot
 from .stop import Stop
@@ -71,6 +73,8 @@ class Phase:
         drive_on: np.ndarray | None = None,
         stop: Stop | None = None,
         v_signal: np.ndarray | None = None,
+        constraints: tuple[FrameConstraint, ...] = (),
+        baumgarte: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         self.robot = robot
         self.topology = topology
@@ -98,7 +102,9 @@ class Phase:
         self._full_data = robot.model.createData()
         self.events = self._build_events()
         #: No torque acts: y is (q_f, v_f) only and the accumulators stay constant.
-        self.passive = not self._drive_f.any() and not self._sliding
+        self.constraints = tuple(constraints)
+        self.baumgarte = baumgarte
+        self.passive = not self._drive_f.any() and not self._sliding and not self.constraints
         self.rhs = self.topology.rhs if self.passive else self._rhs
 
     def pack(self, q: np.ndarray, v: np.ndarray, extras: np.ndarray) -> np.ndarray:
@@ -144,13 +150,49 @@ class Phase:
             return out
         q_f, v_f = y[:k], y[k : 2 * k]
         tau_drive, tau_brake = self.torques(t, q_f, v_f)
-        a = pin.aba(self.topology.model, self.topology.data, q_f, v_f, tau_drive + tau_brake)
+        if self.constraints:
+            a = self.constrained_acceleration(y, tau_drive + tau_brake)[0]
+        else:
+            a = pin.aba(self.topology.model, self.topology.data, q_f, v_f, tau_drive + tau_brake)
         out[:k] = v_f
         out[k : 2 * k] = a
         out[2 * k] = -float(tau_brake @ v_f)
         out[2 * k + 1] = float(tau_drive @ v_f)
         out[2 * k + 2 + self.topology.free] = tau_brake
         return out
+
+    def constrained_acceleration(
+        self, y: np.ndarray, tau_f: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        r"""Free accelerations and multipliers under the frame constraints (index-1 form).
+
+        .. math:: \begin{pmatrix} M_{ff} & J_f^T \\ J_f & 0 \end{pmatrix}
+                  \begin{pmatrix} a_f \\ \lambda \end{pmatrix} =
+                  \begin{pmatrix} \tau_f - b_f \\ -\gamma - 2\alpha J_f v_f - \beta^2 h
+                  \end{pmatrix}
+
+        with Baumgarte gains (alpha, beta) [1/s] pulling drift back to the manifold.
+        """
+        k = self.k
+        q, v = self.topology.merge(y[: 2 * k])
+        model, data = self.robot.model, self._full_data
+        M = compute_M(model, data, q)
+        b = pin.nonLinearEffects(model, data, q, v)
+        compute_kinematics(model, data, q, v)
+        h, J, gamma = stack(self.constraints, model, data)
+        free = self.topology.free
+        Jf = J[:, free]
+        alpha, beta = self.baumgarte
+        m = Jf.shape[0]
+        K = np.zeros((k + m, k + m))
+        K[:k, :k] = M[np.ix_(free, free)]
+        K[:k, k:] = Jf.T
+        K[k:, :k] = Jf
+        rhs = np.concatenate(
+            [tau_f - b[free], -(gamma + 2.0 * alpha * (Jf @ y[k : 2 * k]) + beta**2 * h)]
+        )
+        x = np.linalg.solve(K, rhs)
+        return x[:k], x[k:]
 
     def holding_torque(self, t: float, y: np.ndarray) -> np.ndarray:
         """Torque the locks must exert on every joint to keep the locked ones still [N m].

@@ -114,6 +114,21 @@ def plot_tcp_path(reports: Mapping[str, StoppingReport]) -> Figure:
     return fig
 
 
+def plot_constraint_drift(result: SimulationResult) -> Figure:
+    """Constraint drift max |h| [m, rad] and max |J v| [m/s, rad/s] of the frame constraints."""
+    fig = Figure(figsize=(8, 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    floor = np.finfo(float).tiny
+    ax.semilogy(result.t, np.maximum(result.drift[:, 0], floor), label="max |h| (position)")
+    ax.semilogy(result.t, np.maximum(result.drift[:, 1], floor), label="max |J v| (velocity)")
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("constraint residual [m, rad | m/s, rad/s]")
+    ax.set_title("Drift of the loop closures and dockings")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    return fig
+
+
 def _shade_modes(ax: Axes, t: np.ndarray, modes: np.ndarray) -> None:
     start = 0
     for i in range(1, t.size + 1):

@@ -71,6 +71,16 @@ def build_summary(
             "balance_residual": mechanical_loss - (lost_at_events + brake_work - drive_work),
         },
         "brake_events": [_brake_event(e) for e in result.brake_events],
+        "constraints": [c.name for c in scenario.constraints],
+        "constraint_drift": {
+            "position_max": _num(float(np.nanmax(result.drift[:, 0], initial=np.nan)))
+            if np.any(np.isfinite(result.drift[:, 0]))
+            else None,
+            "velocity_max": _num(float(np.nanmax(result.drift[:, 1])))
+            if np.any(np.isfinite(result.drift[:, 1]))
+            else None,
+            "baumgarte": list(scenario.baumgarte),
+        },
         "stats": {
             "rhs_evals": result.rhs_evals,
             "steps": result.steps,
@@ -186,8 +196,11 @@ def _event_summary(result: SimulationResult, i: int) -> dict[str, Any]:
         "q": event.q.tolist(),
         "v_minus": event.v_minus.tolist(),
         "v_plus": tr.v_plus.tolist(),
+        "activate": list(event.activate),
         "impulse": (-tr.Lambda2).tolist(),
+        "impulse_rows": list(event.rows[tr.m1 :]),
         "impulse_persistent": (-tr.Lambda1).tolist(),
+        "impulse_persistent_rows": list(event.rows[: tr.m1]),
         "energy_loss": tr.energy_loss,
         "free_joints": free_after,
         "p_free_minus": tr.p_free_minus.tolist(),
@@ -230,7 +243,7 @@ def format_summary(summary: Mapping[str, Any]) -> str:
             lines.append(f"  {name}:")
         for ev in run["events"]:
             lines.append(
-                f"{ev['t']:8.4f}  {ev['kind']:<5} {','.join(ev['lock']):<22} "
+                f"{ev['t']:8.4f}  {ev['kind']:<5} {','.join(ev['lock'] + ev['activate']):<22} "
                 f"{_vec(ev['v_minus']):<{w}} {_vec(ev['v_plus']):<{w}} {ev['energy_loss']:10.4f}"
             )
     lines.append("")

@@ -10,17 +10,54 @@ from typing import Any
 
 import jsonschema
 import numpy as np
+import pinocchio as pin
 import yaml
 
 from .brakes import Brake
-from .exceptions import BrakeError, JointNotFound, ScenarioError, VtmError
+from .exceptions import BrakeError, ConstraintError, JointNotFound, ScenarioError, VtmError
+from .holonomic import FrameConstraint
 from .integrators import DOP853, FIXED_STEP, INTEGRATORS, Integrator
 from .robot import Drive, Robot, load_robot
-from .simulation import LockEvent, SimulationResult, simulate
+from .simulation import DEFAULT_BAUMGARTE, LockEvent, SimulationResult, simulate
 from .stop import DEFAULT_GAIN, Stop
 from .transitions import TRANSITIONS
 
 _NUMBER = {"type": "number"}
+_VECTOR3 = {"type": "array", "items": _NUMBER, "minItems": 3, "maxItems": 3}
+_CONSTRAINT = {
+    "type": "object",
+    "additionalProperties": False,
+    "required": ["type", "frame_a"],
+    "properties": {
+        "name": {"type": "string", "description": "Name in reports. Default: <type><index>."},
+        "type": {
+            "enum": ["dock", "loop"],
+            "description": "loop: frame_a meets frame_b; dock: frame_a is fixed in the world.",
+        },
+        "frame_a": {"type": "string", "description": "Frame of the robot."},
+        "frame_b": {"type": "string", "description": "loop only: the second frame."},
+        "mode": {
+            "enum": ["point", "pose"],
+            "description": "point (3 rows) or pose (6 rows). Default: point.",
+        },
+        "axes": {
+            "type": "array",
+            "items": {"enum": ["x", "y", "z", "rx", "ry", "rz"]},
+            "minItems": 1,
+            "description": "Rows kept, world axes. Default: all of the mode's.",
+        },
+        "target": {
+            "type": "object",
+            "additionalProperties": False,
+            "description": "dock only: world pose of the fixture. Default: where frame_a is "
+            "when the constraint activates.",
+            "properties": {
+                "xyz": {**_VECTOR3, "description": "Position [m]."},
+                "rpy": {**_VECTOR3, "description": "Roll, pitch, yaw [rad]. Default: 0."},
+            },
+        },
+    },
+}
 _JOINT_VALUES = {
     "oneOf": [
         {"type": "array", "items": _NUMBER},
@@ -170,13 +207,28 @@ SCHEMA: dict[str, Any] = {
                 },
             },
         },
+        "constraints": {
+            "type": "array",
+            "items": _CONSTRAINT,
+            "description": "Loop closures and dockings active from t = 0. Default: [].",
+        },
+        "stabilisation": {
+            "type": "object",
+            "additionalProperties": False,
+            "description": "Baumgarte gains of the frame constraints. Default: 10, 10.",
+            "properties": {
+                "alpha": {"type": "number", "minimum": 0, "description": "Velocity gain [1/s]."},
+                "beta": {"type": "number", "minimum": 0, "description": "Position gain [1/s]."},
+            },
+        },
         "events": {
             "type": "array",
-            "description": "Lock events, each {t: time [s], lock: [joint names]}. Default: [].",
+            "description": "Ideal activations, each {t: time [s], lock: [joint names], "
+            "activate: [constraints]}. Default: [].",
             "items": {
                 "type": "object",
                 "additionalProperties": False,
-                "required": ["t", "lock"],
+                "required": ["t"],
                 "properties": {
                     "t": {"type": "number", "description": "Event time [s], in [0, duration]."},
                     "lock": {
@@ -184,6 +236,12 @@ SCHEMA: dict[str, Any] = {
                         "items": {"type": "string"},
                         "minItems": 1,
                         "description": "Joints that lock at t.",
+                    },
+                    "activate": {
+                        "type": "array",
+                        "items": _CONSTRAINT,
+                        "minItems": 1,
+                        "description": "Loop closures or dockings that activate at t.",
                     },
                 },
             },
@@ -226,6 +284,8 @@ class Scenario:
     stop: Stop | None = None
     tool_frame: str = ""
     assumptions: tuple[str, ...] = ()
+    constraints: tuple[FrameConstraint, ...] = ()
+    baumgarte: tuple[float, float] = DEFAULT_BAUMGARTE
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -293,6 +353,11 @@ def build_scenario(
 
     integrator = build_integrator(raw.get("integrator", {}), duration, source)
 
+    names: set[str] = set()
+    constraints = tuple(
+        _constraint(robot, spec, source, f"constraints[{i}]", names)
+        for i, spec in enumerate(raw.get("constraints", []))
+    )
     events = []
     locked: set[str] = set()
     for k, ev in sorted(enumerate(raw.get("events", [])), key=lambda item: item[1]["t"]):
@@ -301,7 +366,13 @@ def build_scenario(
             raise ScenarioError(
                 source, f"events[{k}].t", f"{t} s is outside [0, duration = {duration}] s"
             )
-        for joint in ev["lock"]:
+        if "lock" not in ev and "activate" not in ev:
+            raise ScenarioError(source, f"events[{k}]", "needs 'lock' or 'activate' (or both)")
+        activate = tuple(
+            _constraint(robot, spec, source, f"events[{k}].activate[{i}]", names)
+            for i, spec in enumerate(ev.get("activate", []))
+        )
+        for joint in ev.get("lock", []):
             _check_joint(robot, joint, source, f"events[{k}].lock")
             if joint in locked:
                 raise ScenarioError(
@@ -310,9 +381,18 @@ def build_scenario(
                     f"joint '{joint}' locks again at t = {t} s but is already locked",
                 )
             locked.add(joint)
-        events.append(LockEvent(t=t, lock=tuple(ev["lock"])))
+        events.append(LockEvent(t=t, lock=tuple(ev.get("lock", [])), activate=activate))
 
+    stab = raw.get("stabilisation", {})
+    baumgarte = (float(stab.get("alpha", 10.0)), float(stab.get("beta", 10.0)))
     brakes = _brakes(robot, raw.get("brakes", {}), source)
+    if brakes and (constraints or any(e.activate for e in events)):
+        raise ScenarioError(
+            source, "brakes", "brakes together with loop closures or dockings are not supported"
+        )
+    transition = raw.get("transition", DEFAULT_TRANSITION)
+    if transition == "naive" and (constraints or any(e.activate for e in events)):
+        raise ScenarioError(source, "transition", "naive is defined for joint locks only")
     stop = _stop(robot, raw.get("stop"), source, duration)
     if brakes and stop is None:
         raise ScenarioError(source, "brakes", "brakes act after a stop signal: add a 'stop' key")
@@ -330,8 +410,10 @@ def build_scenario(
         v0=v0,
         duration=duration,
         integrator=integrator,
-        transition=raw.get("transition", DEFAULT_TRANSITION),
+        transition=transition,
         events=tuple(events),
+        constraints=constraints,
+        baumgarte=baumgarte,
         brakes=brakes,
         stop=stop,
         tool_frame=tool_frame,
@@ -366,6 +448,42 @@ def build_integrator(spec: Mapping[str, Any], duration: float, source: str = "")
             source, "integrator.dt", f"{method} chooses its own steps: give rtol / atol instead"
         )
     return DOP853(rtol=float(spec.get("rtol", 1e-8)), atol=float(spec.get("atol", 1e-10)))
+
+
+def _constraint(
+    robot: Robot, spec: Mapping[str, Any], source: str, key: str, names: set[str]
+) -> FrameConstraint:
+    kind = spec["type"]
+    name = spec.get("name", f"{kind}{len(names)}")
+    if name in names:
+        raise ScenarioError(source, f"{key}.name", f"'{name}' is used twice")
+    names.add(name)
+    if kind == "loop" and "frame_b" not in spec:
+        raise ScenarioError(source, key, "a loop closure needs frame_b")
+    if kind == "dock" and "frame_b" in spec:
+        raise ScenarioError(source, f"{key}.frame_b", "a docking has no frame_b (use target)")
+    if kind == "loop" and "target" in spec:
+        raise ScenarioError(source, f"{key}.target", "a loop closure has no target")
+    target = None
+    if "target" in spec:
+        xyz = spec["target"].get("xyz")
+        if xyz is None:
+            raise ScenarioError(source, f"{key}.target", "needs xyz [m]")
+        rpy = spec["target"].get("rpy", [0.0, 0.0, 0.0])
+        target = pin.SE3(pin.rpy.rpyToMatrix(*map(float, rpy)), np.array(xyz, dtype=float))
+    try:
+        constraint = FrameConstraint(
+            name=name,
+            frame_a=spec["frame_a"],
+            frame_b=spec.get("frame_b"),
+            mode=spec.get("mode", "point"),
+            axes=tuple(spec.get("axes", ())),
+            target=target,
+        )
+        constraint.check(robot.model)
+    except ConstraintError as exc:
+        raise ScenarioError(source, key, str(exc)) from exc
+    return constraint
 
 
 def _brakes(robot: Robot, raw: Mapping[str, Any], source: str) -> tuple[Brake, ...]:
@@ -436,6 +554,8 @@ def run_scenario(scenario: Scenario, transition: str | None = None) -> Simulatio
         transition or scenario.transition,
         scenario.brakes,
         scenario.stop,
+        scenario.constraints,
+        scenario.baumgarte,
     )
 
 

@@ -11,15 +11,17 @@ from __future__ import annotations
 
 import heapq
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from .brakes import Brake, BrakeMode
-from .constraints import lock_jacobian
+from .constraints import check_independent, lock_jacobian
 from .dynamics import compute_energy, compute_M
-from .exceptions import SimulationError
+from .exceptions import ConstraintError, SimulationError, VtmWarning
+from .holonomic import FrameConstraint, compute_kinematics, stack
 from .integrators import Integrator
 from .phase import DriveLaw, Phase
 from .robot import Robot
@@ -27,18 +29,24 @@ from .stop import Stop
 from .topology import Topology
 from .transitions import TRANSITIONS, TransitionResult
 
+#: Default Baumgarte gains (alpha, beta) [1/s] for frame constraints between events.
+DEFAULT_BAUMGARTE = (10.0, 10.0)
+
 
 @dataclass(frozen=True)
 class LockEvent:
-    """Joints that lock ideally (instantly, with infinite torque) at a given time.
+    """Constraints that activate ideally (instantly) at a given time.
 
     Attributes:
         t: Event time [s].
         lock: Names of the joints that lock at ``t``.
+        activate: Frame constraints (loop closures, dockings) that activate at ``t``; a
+            docking without target holds the frame where it is at ``t``.
     """
 
     t: float
     lock: tuple[str, ...]
+    activate: tuple[FrameConstraint, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -52,8 +60,11 @@ class EventRecord:
         q: Configuration at the event [rad].
         v_minus: Velocity just before [rad/s].
         transition: The transition result (v_plus, Lambda, energy loss, momenta).
-        kind: ``"lock"`` (prescribed lock or ideal brake) or ``"stick"`` (a sliding brake
-            came to rest and holds).
+        kind: ``"lock"`` (prescribed lock or ideal brake), ``"stick"`` (a sliding brake
+            came to rest and holds) or ``"activate"`` (frame constraints, maybe with locks).
+        activate: Names of the frame constraints activated.
+        rows: Label of each row of J+ = [J1; J2] (``"lock joint2"``, ``"dock.x"``), the
+            order of ``transition.Lambda``.
     """
 
     t: float
@@ -63,6 +74,8 @@ class EventRecord:
     v_minus: np.ndarray
     transition: TransitionResult
     kind: str = "lock"
+    activate: tuple[str, ...] = ()
+    rows: tuple[str, ...] = ()
 
     @property
     def v_plus(self) -> np.ndarray:
@@ -108,6 +121,8 @@ class SimulationResult:
         brake_impulse: Friction impulse each brake delivered to its joint [N m s], shape (n,).
         holding: Torque each lock exerts to hold its joint [N m], shape (k, n); NaN where the
             joint is free, and everywhere in runs without brakes (not computed).
+        drift: Constraint drift of the active frame constraints per sample, shape (k, 2):
+            max |h| [m or rad] and max |J v| [m/s or rad/s]; NaN where none is active.
         events: One record per lock, in time order.
         brake_events: Brake state changes, in time order.
         transition: Name of the transition rule used.
@@ -128,6 +143,7 @@ class SimulationResult:
     drive_work: np.ndarray
     brake_impulse: np.ndarray
     holding: np.ndarray
+    drift: np.ndarray
     events: tuple[EventRecord, ...]
     brake_events: tuple[BrakeEvent, ...]
     transition: str
@@ -163,6 +179,9 @@ class _Hybrid:
         self.drive_on = np.full(n, stop is not None)
         self.v_signal: np.ndarray | None = None
         self.rule = TRANSITIONS[rule]
+        self.rule_name = rule
+        self.frames: list[FrameConstraint] = []
+        self.baumgarte = (0.0, 0.0)
         self.data = robot.model.createData()
         self.events: list[EventRecord] = []
         self.brake_events: list[BrakeEvent] = []
@@ -180,17 +199,44 @@ class _Hybrid:
             self.drive_on,
             self.stop,
             self.v_signal,
+            tuple(self.frames),
+            self.baumgarte,
         )
 
-    def lock(self, t: float, joints: Sequence[int], kind: str) -> None:
-        """Apply the transition rule for ``joints`` locking at ``t``."""
+    def lock(
+        self,
+        t: float,
+        joints: Sequence[int],
+        kind: str,
+        frames: Sequence[FrameConstraint] = (),
+    ) -> None:
+        """Apply the transition rule for ``joints`` locking and ``frames`` activating at ``t``.
+
+        J1 stacks the locked joints' rows and the active frame constraints; J2 the new ones.
+        """
         names = self.robot.joints
         for i in joints:
             if i in self.locked:
                 raise SimulationError(f"Joint '{names[i]}' is locked twice (again at t = {t} s)")
-        n = self.robot.nv
-        M = compute_M(self.robot.model, self.data, self.q)
-        result = self.rule(M, lock_jacobian(n, self.locked), lock_jacobian(n, joints), self.v)
+        model, n = self.robot.model, self.robot.nv
+        frames = [f.latch(model, self.data, self.q) for f in frames]
+        if (frames or self.frames) and self.rule_name == "naive":
+            raise SimulationError("The naive rule is defined for joint locks only")
+        compute_kinematics(model, self.data, self.q, self.v)
+        _, F1, _ = stack(tuple(self.frames), model, self.data)
+        _, F2, _ = stack(tuple(frames), model, self.data)
+        J1 = np.vstack([lock_jacobian(n, self.locked), F1])
+        J2 = np.vstack([lock_jacobian(n, joints), F2])
+        labels = [f"lock {names[i]}" for i in [*self.locked, *joints]]
+        labels = (
+            labels[: len(self.locked)]
+            + [f"{f.name}.{a}" for f in self.frames for a in f.axes]
+            + labels[len(self.locked) :]
+            + [f"{f.name}.{a}" for f in frames for a in f.axes]
+        )
+        check_independent(np.vstack([J1, J2]), labels)
+        M = compute_M(model, self.data, self.q)
+        result = self.rule(M, J1, J2, self.v)
         self.events.append(
             EventRecord(
                 t=t,
@@ -199,10 +245,13 @@ class _Hybrid:
                 q=self.q.copy(),
                 v_minus=self.v.copy(),
                 transition=result,
-                kind=kind,
+                kind="activate" if frames else kind,
+                activate=tuple(f.name for f in frames),
+                rows=tuple(labels),
             )
         )
         self.locked = self.locked + list(joints)
+        self.frames = self.frames + frames
         self.v = result.v_plus.copy()
         self.v[self.locked] = 0.0
 
@@ -268,6 +317,8 @@ def simulate(
     transition: str = "kkt",
     brakes: Sequence[Brake] = (),
     stop: Stop | None = None,
+    constraints: Sequence[FrameConstraint] = (),
+    baumgarte: tuple[float, float] = DEFAULT_BAUMGARTE,
 ) -> SimulationResult:
     """Simulate the robot from (q0, v0) with prescribed locks, and brakes after a stop signal.
 
@@ -285,6 +336,11 @@ def simulate(
         transition: Name in :data:`vtm_pin.transitions.TRANSITIONS`.
         brakes: One brake per braked joint; they act only after a stop signal.
         stop: The emergency stop, if any.
+        constraints: Frame constraints active from t = 0 (loop closures, dockings); q0 and
+            v0 are projected onto them first, with a :class:`VtmWarning` if that moves them
+            by more than 1e-6.
+        baumgarte: Gains (alpha, beta) [1/s] of the Baumgarte stabilisation of the frame
+            constraints between events; (0, 0) integrates the bare index-1 equations.
 
     Returns:
         The sampled motion and event records.
@@ -305,6 +361,11 @@ def simulate(
             raise SimulationError(f"Event at t = {lock_event.t} s is outside [0, {duration}] s")
     if brakes and stop is None:
         raise SimulationError("Brakes act only after a stop signal: give a stop")
+    activated = list(constraints) + [c for e in events for c in e.activate]
+    if brakes and activated:
+        raise SimulationError("Brakes together with loop closures or dockings are not supported")
+    for constraint in activated:
+        constraint.check(robot.model)
     start = time.perf_counter()
     h = _Hybrid(
         robot,
@@ -314,6 +375,11 @@ def simulate(
         stop,
         transition,
     )
+    h.baumgarte = baumgarte
+    if constraints:
+        h.frames = [c.latch(robot.model, h.data, h.q) for c in constraints]
+        h.q, h.v = project_initial_state(robot, h.q, h.v, h.frames)
+        h.phase = h.new_phase()
     queue = _time_events(robot, events, h.brakes, stop, duration)
 
     ts: list[np.ndarray] = []
@@ -323,18 +389,21 @@ def simulate(
     modes: list[np.ndarray] = []
     extras: list[np.ndarray] = []
     holds: list[np.ndarray] = []
+    drifts: list[np.ndarray] = []
     rhs_evals = steps = 0
     t = 0.0
     while True:
         # Events due now (t = 0 or a time event just reached) are applied before integrating.
         ideal: list[int] = []
+        frames: list[FrameConstraint] = []
         changed = False
         while queue and queue[0][0] <= t:
             _, _, _, kind, payload = heapq.heappop(queue)
             changed = True
             if kind == "lock":
-                assert isinstance(payload, tuple)
-                ideal.extend(robot.joint_indices(payload))
+                assert isinstance(payload, LockEvent)
+                ideal.extend(robot.joint_indices(payload.lock))
+                frames.extend(payload.activate)
             elif kind == "signal":
                 assert stop is not None
                 if stop.category == 0:
@@ -346,8 +415,8 @@ def simulate(
             elif kind == "engage":
                 assert isinstance(payload, int)
                 h.engage(t, payload, ideal)
-        if ideal:
-            h.lock(t, ideal, "lock")
+        if ideal or frames:
+            h.lock(t, ideal, "lock", frames)
         if changed:
             h.phase = h.new_phase()
         if t >= duration:
@@ -384,6 +453,7 @@ def simulate(
             for r in range(size):
                 block_hold[r, locked] = phase.holding_torque(segment.t[r], segment.y[r])[locked]
         holds.append(block_hold)
+        drifts.append(_drift(phase, segment.y))
         block_extras = phase.unpack_extras(segment.y, h.extras)
         extras.append(block_extras)
         t = float(segment.t[-1])
@@ -410,6 +480,7 @@ def simulate(
         drive_work=work[:, 1],
         brake_impulse=work[-1, 2:].copy(),
         holding=np.vstack(holds),
+        drift=np.vstack(drifts),
         events=tuple(h.events),
         brake_events=tuple(h.brake_events),
         transition=transition,
@@ -419,6 +490,74 @@ def simulate(
         wall_time=wall_time,
         stop=stop,
     )
+
+
+#: Initial corrections larger than this [rad, rad/s] are reported with a warning.
+PROJECTION_WARNING = 1e-6
+
+
+def project_initial_state(
+    robot: Robot, q: np.ndarray, v: np.ndarray, frames: Sequence[FrameConstraint]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bring (q, v) onto the frame constraints: Gauss-Newton on h(q), then J v = 0.
+
+    The velocity is corrected with the momentum-consistent projection (the ``kkt`` jump of
+    activating the constraints), the configuration by minimum-norm steps.
+
+    Raises:
+        ConstraintError: The constraints cannot be met from q (no convergence).
+    """
+    model, data = robot.model, robot.model.createData()
+    q0, v0 = q.copy(), v.copy()
+    q = q.copy()
+    for _ in range(PROJECTION_ITERATIONS):
+        compute_kinematics(model, data, q, np.zeros(robot.nv))
+        h, J, _ = stack(tuple(frames), model, data)
+        if np.max(np.abs(h), initial=0.0) < 1e-13:
+            break
+        q = q - np.linalg.lstsq(J, h, rcond=None)[0]
+    else:
+        raise ConstraintError(
+            f"The initial configuration cannot be brought onto the constraints "
+            f"(|h| = {np.max(np.abs(h)):.3g} after {PROJECTION_ITERATIONS} steps)"
+        )
+    compute_kinematics(model, data, q, v)
+    _, J, _ = stack(tuple(frames), model, data)
+    M = compute_M(model, data, q)
+    v = v - M_weighted_correction(M, J, v)
+    dq, dv = np.max(np.abs(q - q0)), np.max(np.abs(v - v0))
+    if dq > PROJECTION_WARNING or dv > PROJECTION_WARNING:
+        warnings.warn(
+            f"Initial state moved onto the constraints by up to {dq:.3g} rad and {dv:.3g} rad/s",
+            VtmWarning,
+            stacklevel=3,
+        )
+    return q, v
+
+
+PROJECTION_ITERATIONS = 50
+
+
+def M_weighted_correction(M: np.ndarray, J: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """M^-1 J^T (J M^-1 J^T)^-1 J v: the part of v that J v = 0 removes, M-orthogonally."""
+    if J.shape[0] == 0:
+        return np.zeros_like(v)
+    Minv_JT = np.linalg.solve(M, J.T)
+    return Minv_JT @ np.linalg.solve(J @ Minv_JT, J @ v)
+
+
+def _drift(phase: Phase, y: np.ndarray) -> np.ndarray:
+    """Max |h| and max |J v| of the phase's frame constraints at each row of y."""
+    out = np.full((len(y), 2), np.nan)
+    if not phase.constraints:
+        return out
+    model, data = phase.robot.model, phase._full_data
+    for r, row in enumerate(y):
+        q, v = phase.topology.merge(row[: 2 * phase.k])
+        compute_kinematics(model, data, q, v)
+        h, J, _ = stack(phase.constraints, model, data)
+        out[r] = np.max(np.abs(h)), np.max(np.abs(J @ v))
+    return out
 
 
 #: Largest energy-balance error of one interval, as a fraction of the energy it moved. A
@@ -482,7 +621,7 @@ def _time_events(
     items: list[tuple[float, int, str, object]] = []
     for event in events:
         robot.joint_indices(event.lock)  # unknown names fail before the run
-        items.append((event.t, 2, "lock", tuple(event.lock)))
+        items.append((event.t, 2, "lock", event))
     if stop is not None:
         items.append((stop.t, 0, "signal", None))
         if stop.category == 1:

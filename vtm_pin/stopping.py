@@ -101,8 +101,10 @@ def compute_stopping_report(
             j = robot.joint_index(name)
             if locked_for_good[j]:
                 stop_time[j] = event.t - t_signal
+        for label, impulse in zip(event.rows, -event.transition.Lambda, strict=True):
+            if label.startswith("lock "):
+                lock_impulse[robot.joint_index(label[5:])] += impulse
         order = [robot.joint_index(name) for name in event.locked_before + event.lock]
-        lock_impulse[order] += -event.transition.Lambda
         free_after = [j for j in range(n) if j not in order]
         if free_after:
             gain = np.abs(event.v_plus[free_after]) - np.abs(event.v_minus[free_after])

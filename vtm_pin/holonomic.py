@@ -1,0 +1,135 @@
+r"""Holonomic constraints between frames: loop closures and docking, with Pinocchio kinematics.
+
+A constraint gives, at (q, v), its residual h(q), its Jacobian J(q) (J v = dh/dt) and the
+acceleration term gamma = (dJ/dt) v, so that J a + gamma = 0 on the constraint manifold.
+Joint locks are handled separately (:mod:`vtm_pin.constraints`): their rows are unit rows and
+locked joints are removed from the integrated coordinates.
+
+* ``point``: the origin of ``frame_a`` coincides with the origin of ``frame_b`` (loop closure) or
+  with a fixed world point (docking). Rows: world x, y, z components, or a chosen subset
+  (``axes``; a planar mechanism keeps x and z, its y row being identically zero).
+* ``pose``: also the orientations agree; rotation rows are R_b log3(R_b^T R_a) in world axes.
+
+Velocities and Jacobians are taken in ``LOCAL_WORLD_ALIGNED`` at each frame's origin, so for
+coincident points the linear rows of J_a - J_b are exactly dh/dq.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .exceptions import ConstraintError
+
+_AXES = {"x": 0, "y": 1, "z": 2, "rx": 3, "ry": 4, "rz": 5}
+_LWA = pin.LOCAL_WORLD_ALIGNED
+
+
+@dataclass(frozen=True)
+class FrameConstraint:
+    """A loop closure (``frame_b`` given) or a docking to the world (``frame_b`` None).
+
+    Attributes:
+        name: Name used in reports.
+        frame_a: Frame of the robot that is constrained.
+        frame_b: Second frame of a loop closure; None for docking to ``target``.
+        mode: ``"point"`` (3 translation rows) or ``"pose"`` (3 translation + 3 rotation rows).
+        axes: Rows kept, among x, y, z (and rx, ry, rz for ``pose``), world axes.
+        target: Docking target pose in the world; None until latched at activation.
+    """
+
+    name: str
+    frame_a: str
+    frame_b: str | None = None
+    mode: str = "point"
+    axes: tuple[str, ...] = ()
+    target: pin.SE3 | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("point", "pose"):
+            raise ConstraintError(
+                f"Constraint '{self.name}': mode '{self.mode}' is not point or pose"
+            )
+        allowed = ("x", "y", "z") if self.mode == "point" else tuple(_AXES)
+        if not self.axes:
+            object.__setattr__(self, "axes", allowed)
+        bad = [a for a in self.axes if a not in allowed]
+        if bad:
+            raise ConstraintError(
+                f"Constraint '{self.name}': axis '{bad[0]}' not allowed for {self.mode}; "
+                f"allowed: {', '.join(allowed)}"
+            )
+        object.__setattr__(self, "axes", tuple(sorted(set(self.axes), key=_AXES.__getitem__)))
+
+    @property
+    def size(self) -> int:
+        """Number of constraint rows."""
+        return len(self.axes)
+
+    def check(self, model: pin.Model) -> None:
+        """Raise if a frame is not in the model."""
+        for frame in (self.frame_a, self.frame_b):
+            if frame is not None and not model.existFrame(frame):
+                names = ", ".join(f.name for f in model.frames)
+                raise ConstraintError(
+                    f"Constraint '{self.name}': no frame '{frame}'; frames: {names}"
+                )
+
+    def latch(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> FrameConstraint:
+        """A docking constraint whose target is frame_a's pose at q (activation in place)."""
+        if self.frame_b is not None or self.target is not None:
+            return self
+        pin.framesForwardKinematics(model, data, q)
+        pose = data.oMf[model.getFrameId(self.frame_a)].copy()
+        return dataclasses.replace(self, target=pose)
+
+    def evaluate(
+        self, model: pin.Model, data: pin.Data
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """h, J (rows x nv) and gamma = (dJ/dt) v at the state of ``data``.
+
+        ``data`` must hold ``forwardKinematics(q, v, 0)``, ``computeJointJacobians`` and
+        ``updateFramePlacements`` of the current state (see :func:`compute_kinematics`).
+        """
+        ia = model.getFrameId(self.frame_a)
+        pose_a = data.oMf[ia]
+        jac = pin.getFrameJacobian(model, data, ia, _LWA).copy()
+        acc = pin.getFrameClassicalAcceleration(model, data, ia, _LWA).vector.copy()
+        if self.frame_b is not None:
+            ib = model.getFrameId(self.frame_b)
+            pose_b = data.oMf[ib]
+            jac -= pin.getFrameJacobian(model, data, ib, _LWA)
+            acc -= pin.getFrameClassicalAcceleration(model, data, ib, _LWA).vector
+        else:
+            if self.target is None:
+                raise ConstraintError(f"Docking constraint '{self.name}' has no target yet")
+            pose_b = self.target
+        h = np.empty(6)
+        h[:3] = pose_a.translation - pose_b.translation
+        h[3:] = pose_b.rotation @ pin.log3(pose_b.rotation.T @ pose_a.rotation)
+        rows = [_AXES[a] for a in self.axes]
+        return h[rows], jac[rows], acc[rows]
+
+
+def compute_kinematics(model: pin.Model, data: pin.Data, q: np.ndarray, v: np.ndarray) -> None:
+    """Fill ``data`` with what :meth:`FrameConstraint.evaluate` reads (zero acceleration)."""
+    pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
+    pin.computeJointJacobians(model, data, q)
+    pin.updateFramePlacements(model, data)
+
+
+def stack(
+    constraints: tuple[FrameConstraint, ...], model: pin.Model, data: pin.Data
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """h, J and gamma of several constraints stacked in order (kinematics already computed)."""
+    if not constraints:
+        return np.zeros(0), np.zeros((0, model.nv)), np.zeros(0)
+    parts = [c.evaluate(model, data) for c in constraints]
+    return (
+        np.concatenate([p[0] for p in parts]),
+        np.vstack([p[1] for p in parts]),
+        np.concatenate([p[2] for p in parts]),
+    )
