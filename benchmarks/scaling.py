@@ -27,8 +27,7 @@ from matplotlib.figure import Figure
 from vtm_pin import TRANSITIONS, compute_forward_dynamics, compute_M
 from vtm_pin.chain import build_chain
 from vtm_pin.constraints import lock_jacobian
-from vtm_pin.holonomic import FrameConstraint, compute_kinematics, stack
-from vtm_pin.simulation import M_weighted_correction
+from vtm_pin.holonomic import FrameConstraint, M_weighted_correction, compute_kinematics, stack
 from vtm_pin.topology import Topology
 
 SIZES = [3, 6, 12, 25, 50, 100, 200]

@@ -14,10 +14,15 @@ from vtm_pin import (
 )
 from vtm_pin.brakes import BrakeMode
 from vtm_pin.constraints import check_independent, lock_jacobian
-from vtm_pin.holonomic import FrameConstraint, compute_kinematics, stack
+from vtm_pin.holonomic import (
+    FrameConstraint,
+    M_weighted_correction,
+    compute_kinematics,
+    project_initial_state,
+    stack,
+)
 from vtm_pin.integrators import DOP853
 from vtm_pin.phase import Phase
-from vtm_pin.simulation import M_weighted_correction, project_initial_state
 from vtm_pin.topology import Topology
 
 LOOP = FrameConstraint("loop", "tip_l", "tip_r", "point", ("x", "z"))

@@ -17,12 +17,16 @@ coincident points the linear rows of J_a - J_b are exactly dh/dq.
 from __future__ import annotations
 
 import dataclasses
+import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from .exceptions import ConstraintError
+from .dynamics import compute_M
+from .exceptions import ConstraintError, VtmWarning
+from .robot import Robot
 
 _AXES = {"x": 0, "y": 1, "z": 2, "rx": 3, "ry": 4, "rz": 5}
 _LWA = pin.LOCAL_WORLD_ALIGNED
@@ -133,3 +137,56 @@ def stack(
         np.vstack([p[1] for p in parts]),
         np.concatenate([p[2] for p in parts]),
     )
+
+
+#: Initial corrections larger than this [rad, rad/s] are reported with a warning.
+PROJECTION_WARNING = 1e-6
+#: Gauss-Newton steps allowed to bring q onto the constraints.
+PROJECTION_ITERATIONS = 50
+
+
+def project_initial_state(
+    robot: Robot, q: np.ndarray, v: np.ndarray, frames: Sequence[FrameConstraint]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bring (q, v) onto the frame constraints: Gauss-Newton on h(q), then J v = 0.
+
+    The velocity is corrected with the momentum-consistent projection (the ``kkt`` jump of
+    activating the constraints), the configuration by minimum-norm steps.
+
+    Raises:
+        ConstraintError: The constraints cannot be met from q (no convergence).
+    """
+    model, data = robot.model, robot.model.createData()
+    q0, v0 = q.copy(), v.copy()
+    q = q.copy()
+    for _ in range(PROJECTION_ITERATIONS):
+        compute_kinematics(model, data, q, np.zeros(robot.nv))
+        h, J, _ = stack(tuple(frames), model, data)
+        if np.max(np.abs(h), initial=0.0) < 1e-13:
+            break
+        q = q - np.linalg.lstsq(J, h, rcond=None)[0]
+    else:
+        raise ConstraintError(
+            f"The initial configuration cannot be brought onto the constraints "
+            f"(|h| = {np.max(np.abs(h)):.3g} after {PROJECTION_ITERATIONS} steps)"
+        )
+    compute_kinematics(model, data, q, v)
+    _, J, _ = stack(tuple(frames), model, data)
+    M = compute_M(model, data, q)
+    v = v - M_weighted_correction(M, J, v)
+    dq, dv = np.max(np.abs(q - q0)), np.max(np.abs(v - v0))
+    if dq > PROJECTION_WARNING or dv > PROJECTION_WARNING:
+        warnings.warn(
+            f"Initial state moved onto the constraints by up to {dq:.3g} rad and {dv:.3g} rad/s",
+            VtmWarning,
+            stacklevel=3,
+        )
+    return q, v
+
+
+def M_weighted_correction(M: np.ndarray, J: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """M^-1 J^T (J M^-1 J^T)^-1 J v: the part of v that J v = 0 removes, M-orthogonally."""
+    if J.shape[0] == 0:
+        return np.zeros_like(v)
+    Minv_JT = np.linalg.solve(M, J.T)
+    return Minv_JT @ np.linalg.solve(J @ Minv_JT, J @ v)

@@ -194,6 +194,22 @@ class Phase:
         x = np.linalg.solve(K, rhs)
         return x[:k], x[k:]
 
+    def constraint_drift(self, y: np.ndarray) -> np.ndarray:
+        """Max |h| [m, rad] and max |J v| [m/s, rad/s] of the frame constraints per row of y.
+
+        NaN where the phase has no frame constraint.
+        """
+        out = np.full((len(y), 2), np.nan)
+        if not self.constraints:
+            return out
+        model, data = self.robot.model, self._full_data
+        for r, row in enumerate(y):
+            q, v = self.topology.merge(row[: 2 * self.k])
+            compute_kinematics(model, data, q, v)
+            h, J, _ = stack(self.constraints, model, data)
+            out[r] = np.max(np.abs(h)), np.max(np.abs(J @ v))
+        return out
+
     def holding_torque(self, t: float, y: np.ndarray) -> np.ndarray:
         """Torque the locks must exert on every joint to keep the locked ones still [N m].
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import heapq
 import time
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -20,8 +19,8 @@ import numpy as np
 from .brakes import Brake, BrakeMode
 from .constraints import check_independent, lock_jacobian
 from .dynamics import compute_energy, compute_M
-from .exceptions import ConstraintError, SimulationError, VtmWarning
-from .holonomic import FrameConstraint, compute_kinematics, stack
+from .exceptions import SimulationError
+from .holonomic import FrameConstraint, compute_kinematics, project_initial_state, stack
 from .integrators import Integrator
 from .phase import DriveLaw, Phase
 from .robot import Robot
@@ -453,7 +452,7 @@ def simulate(
             for r in range(size):
                 block_hold[r, locked] = phase.holding_torque(segment.t[r], segment.y[r])[locked]
         holds.append(block_hold)
-        drifts.append(_drift(phase, segment.y))
+        drifts.append(phase.constraint_drift(segment.y))
         block_extras = phase.unpack_extras(segment.y, h.extras)
         extras.append(block_extras)
         t = float(segment.t[-1])
@@ -490,74 +489,6 @@ def simulate(
         wall_time=wall_time,
         stop=stop,
     )
-
-
-#: Initial corrections larger than this [rad, rad/s] are reported with a warning.
-PROJECTION_WARNING = 1e-6
-
-
-def project_initial_state(
-    robot: Robot, q: np.ndarray, v: np.ndarray, frames: Sequence[FrameConstraint]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Bring (q, v) onto the frame constraints: Gauss-Newton on h(q), then J v = 0.
-
-    The velocity is corrected with the momentum-consistent projection (the ``kkt`` jump of
-    activating the constraints), the configuration by minimum-norm steps.
-
-    Raises:
-        ConstraintError: The constraints cannot be met from q (no convergence).
-    """
-    model, data = robot.model, robot.model.createData()
-    q0, v0 = q.copy(), v.copy()
-    q = q.copy()
-    for _ in range(PROJECTION_ITERATIONS):
-        compute_kinematics(model, data, q, np.zeros(robot.nv))
-        h, J, _ = stack(tuple(frames), model, data)
-        if np.max(np.abs(h), initial=0.0) < 1e-13:
-            break
-        q = q - np.linalg.lstsq(J, h, rcond=None)[0]
-    else:
-        raise ConstraintError(
-            f"The initial configuration cannot be brought onto the constraints "
-            f"(|h| = {np.max(np.abs(h)):.3g} after {PROJECTION_ITERATIONS} steps)"
-        )
-    compute_kinematics(model, data, q, v)
-    _, J, _ = stack(tuple(frames), model, data)
-    M = compute_M(model, data, q)
-    v = v - M_weighted_correction(M, J, v)
-    dq, dv = np.max(np.abs(q - q0)), np.max(np.abs(v - v0))
-    if dq > PROJECTION_WARNING or dv > PROJECTION_WARNING:
-        warnings.warn(
-            f"Initial state moved onto the constraints by up to {dq:.3g} rad and {dv:.3g} rad/s",
-            VtmWarning,
-            stacklevel=3,
-        )
-    return q, v
-
-
-PROJECTION_ITERATIONS = 50
-
-
-def M_weighted_correction(M: np.ndarray, J: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """M^-1 J^T (J M^-1 J^T)^-1 J v: the part of v that J v = 0 removes, M-orthogonally."""
-    if J.shape[0] == 0:
-        return np.zeros_like(v)
-    Minv_JT = np.linalg.solve(M, J.T)
-    return Minv_JT @ np.linalg.solve(J @ Minv_JT, J @ v)
-
-
-def _drift(phase: Phase, y: np.ndarray) -> np.ndarray:
-    """Max |h| and max |J v| of the phase's frame constraints at each row of y."""
-    out = np.full((len(y), 2), np.nan)
-    if not phase.constraints:
-        return out
-    model, data = phase.robot.model, phase._full_data
-    for r, row in enumerate(y):
-        q, v = phase.topology.merge(row[: 2 * phase.k])
-        compute_kinematics(model, data, q, v)
-        h, J, _ = stack(phase.constraints, model, data)
-        out[r] = np.max(np.abs(h)), np.max(np.abs(J @ v))
-    return out
 
 
 #: Largest energy-balance error of one interval, as a fraction of the energy it moved. A
