@@ -221,7 +221,8 @@ class _Hybrid:
         frames = [f.latch(model, self.data, self.q) for f in frames]
         if (frames or self.frames) and self.rule_name == "naive":
             raise SimulationError("The naive rule is defined for joint locks only")
-        compute_kinematics(model, self.data, self.q, self.v)
+        if self.frames or frames:
+            compute_kinematics(model, self.data, self.q, self.v)
         _, F1, _ = stack(tuple(self.frames), model, self.data)
         _, F2, _ = stack(tuple(frames), model, self.data)
         J1 = np.vstack([lock_jacobian(n, self.locked), F1])
