@@ -2,6 +2,7 @@
 
 import re
 
+import pytest
 from conftest import ROOT
 
 from vtm_pin.scenario import SCHEMA
@@ -27,10 +28,85 @@ def schema_keys(schema, prefix=""):
             yield from schema_keys(sub["items"], f"{path}[].")
 
 
-def test_readme_key_table_matches_schema():
+def readme_rows():
+    """Key -> (type, unit, default, allowed) of the README's scenario-key table."""
     section = README.split("## Scenario files", 1)[1].split("\n## ", 1)[0]
-    documented = set(re.findall(r"^\| `([^`]+)` \|", section, flags=re.M))
-    assert documented == set(schema_keys(SCHEMA))
+    rows = {}
+    for line in section.splitlines():
+        match = re.match(r"^\| `([^`]+)` \|(.*)\|$", line)
+        if match:
+            cells = [c.strip() for c in re.split(r"(?<!\\)\|", match.group(2))]
+            assert len(cells) == 4, line
+            rows[match.group(1)] = cells
+    return rows
+
+
+def schema_at(path):
+    """The schema of a key path such as ``brakes.<joint>.delay`` or ``events[].t``."""
+    sub = SCHEMA
+    for part in re.split(r"\.(?![^<]*>)", path):
+        name = part.removesuffix("[]")
+        sub = sub["additionalProperties"] if name == "<joint>" else sub["properties"][name]
+        if part.endswith("[]"):
+            sub = sub["items"]
+    return sub
+
+
+def required_keys(schema, prefix=""):
+    for key, sub in schema.get("properties", {}).items():
+        path = f"{prefix}{key}"
+        if key in schema.get("required", []):
+            yield path
+        if sub.get("type") == "object":
+            yield from required_keys(sub, f"{path}.")
+        if sub.get("type") == "array" and sub.get("items", {}).get("type") == "object":
+            yield from required_keys(sub["items"], f"{path}[].")
+
+
+TYPE_WORDS = {"number": "number", "string": "string", "boolean": "boolean", "array": "list"}
+TYPE_WORDS["object"] = "mapping"
+
+
+def type_words(schema):
+    if "oneOf" in schema:
+        return {w for alt in schema["oneOf"] for w in type_words(alt)}
+    if "enum" in schema:
+        return {"integer" if isinstance(schema["enum"][0], int) else "string"}
+    return {TYPE_WORDS[schema["type"]]}
+
+
+def test_readme_key_table_matches_schema():
+    assert set(readme_rows()) == set(schema_keys(SCHEMA))
+
+
+@pytest.mark.parametrize("key", sorted(schema_keys(SCHEMA)))
+def test_readme_key_row_agrees_with_schema(key):
+    """Type, unit, default and allowed values of each documented key follow the schema."""
+    kind, unit, default, allowed = readme_rows()[key]
+    schema = schema_at(key)
+    for word in type_words(schema):
+        assert word in kind, f"{key}: type column '{kind}' lacks '{word}'"
+    for value in schema.get("enum", []):
+        assert f"`{value}`" in allowed, f"{key}: allowed values lack `{value}`"
+    if schema.get("exclusiveMinimum") == 0:
+        assert "> 0" in allowed, f"{key}: allowed values lack '> 0'"
+    if schema.get("minimum") == 0:
+        assert "≥ 0" in allowed, f"{key}: allowed values lack '≥ 0'"
+    if key in set(required_keys(SCHEMA)):
+        assert default == "required", f"{key}: required in the schema, README says '{default}'"
+    else:
+        assert not default == "required", f"{key}: optional in the schema"
+    description = schema.get("description", "")
+    stated = re.search(r"Default: (.+)\.$", description)
+    if stated:
+        assert default.replace("`", "") == stated.group(1), f"{key}: default differs"
+    leaf = schema.get("type") not in ("object", "array") or "items" not in schema
+    leaf = leaf and "properties" not in schema and "additionalProperties" not in schema
+    units = re.findall(r"\[([^\]]+)\]", description)
+    if leaf:
+        assert bool(units) == bool(unit), f"{key}: unit '{unit}' vs schema {units}"
+        if units:
+            assert unit.startswith(units[0]), f"{key}: unit '{unit}' vs schema [{units[0]}]"
 
 
 def test_ci_runs_the_readme_test_command():

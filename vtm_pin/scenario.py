@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,7 +53,7 @@ _CONSTRAINT = {
             "when the constraint activates.",
             "properties": {
                 "xyz": {**_VECTOR3, "description": "Position [m]."},
-                "rpy": {**_VECTOR3, "description": "Roll, pitch, yaw [rad]. Default: 0."},
+                "rpy": {**_VECTOR3, "description": "Roll, pitch, yaw [rad]. Default: [0, 0, 0]."},
             },
         },
     },
@@ -85,8 +85,16 @@ SCHEMA: dict[str, Any] = {
                 "type": "object",
                 "additionalProperties": False,
                 "properties": {
-                    "gear_ratio": {"type": "number", "exclusiveMinimum": 0},
-                    "rotor_inertia": {"type": "number", "minimum": 0},
+                    "gear_ratio": {
+                        "type": "number",
+                        "exclusiveMinimum": 0,
+                        "description": "Motor angle per joint angle [-]. Default: 1.",
+                    },
+                    "rotor_inertia": {
+                        "type": "number",
+                        "minimum": 0,
+                        "description": "Rotor inertia, motor side [kg m²]. Default: 0.",
+                    },
                 },
             },
         },
@@ -215,7 +223,8 @@ SCHEMA: dict[str, Any] = {
         "stabilisation": {
             "type": "object",
             "additionalProperties": False,
-            "description": "Baumgarte gains of the frame constraints. Default: 10, 10.",
+            "description": "Baumgarte gains of the frame constraints. Default: {alpha: 10, beta: "
+            "10}.",
             "properties": {
                 "alpha": {"type": "number", "minimum": 0, "description": "Velocity gain [1/s]."},
                 "beta": {"type": "number", "minimum": 0, "description": "Position gain [1/s]."},
@@ -251,6 +260,8 @@ SCHEMA: dict[str, Any] = {
 
 DEFAULT_DT = 1.0e-4  # [s]
 DEFAULT_TRANSITION = "kkt"
+#: Folder of the scenarios shipped with the project.
+SCENARIOS_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 
 
 @dataclass(frozen=True)
@@ -296,18 +307,75 @@ def load_scenario(path: str | Path) -> Scenario:
             names the file, the key path and what is allowed.
     """
     path = Path(path)
+    raw = _read_yaml(path)
+    return build_scenario(raw, source=str(path), base_dir=path.parent, name=path.stem)
+
+
+@dataclass(frozen=True)
+class ScenarioEntry:
+    """One scenario file of a folder, as listed (checked against the schema, not run).
+
+    Attributes:
+        name: File stem, the scenario's name.
+        path: The file.
+        robot: Its ``robot`` key ("" if the file is invalid).
+        duration: Its ``duration`` [s] (NaN if invalid).
+        description: Its ``description``, or the reason it is invalid.
+        valid: Whether it passed the schema check.
+    """
+
+    name: str
+    path: Path
+    robot: str
+    duration: float
+    description: str
+    valid: bool
+
+
+def list_scenarios(folder: str | Path = SCENARIOS_DIR) -> list[ScenarioEntry]:
+    """The ``*.yaml`` scenarios of ``folder`` (the project's ``scenarios/`` by default).
+
+    Each file is parsed and checked against the schema; robots are not loaded, so a listed
+    scenario may still name an unknown robot or joint.
+
+    Raises:
+        ScenarioError: ``folder`` is not a folder.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ScenarioError(str(folder), "", "is not a folder")
+    entries = []
+    for path in sorted(folder.glob("*.yaml")):
+        try:
+            raw = _read_yaml(path)
+            if not isinstance(raw, Mapping):
+                raise ScenarioError(str(path), "", "a scenario must be a mapping")
+            _check_schema(raw, str(path))
+        except ScenarioError as exc:
+            entries.append(ScenarioEntry(path.stem, path, "", math.nan, str(exc), False))
+            continue
+        description = " ".join(str(raw.get("description", "")).split())
+        entries.append(
+            ScenarioEntry(
+                path.stem, path, str(raw["robot"]), float(raw["duration"]), description, True
+            )
+        )
+    return entries
+
+
+def _read_yaml(path: Path) -> Any:
+    """The parsed YAML of a scenario file; errors name the file."""
     source = str(path)
     try:
         text = path.read_text()
     except OSError as exc:
         raise ScenarioError(source, "", f"cannot read the file ({exc.strerror})") from exc
     try:
-        raw = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
         raise ScenarioError(source, "", f"not valid YAML{where}") from exc
-    return build_scenario(raw, source=source, base_dir=path.parent, name=path.stem)
 
 
 def build_scenario(
@@ -542,8 +610,16 @@ def _stop(robot: Robot, raw: Any, source: str, duration: float) -> Stop | None:
         raise ScenarioError(source, "stop", str(exc)) from exc
 
 
-def run_scenario(scenario: Scenario, transition: str | None = None) -> SimulationResult:
-    """Simulate a scenario, optionally with another transition rule than its own."""
+def run_scenario(
+    scenario: Scenario,
+    transition: str | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> SimulationResult:
+    """Simulate a scenario, optionally with another transition rule than its own.
+
+    ``progress`` is called with the simulated time [s] as the run advances (see
+    :func:`vtm_pin.simulation.simulate`).
+    """
     return simulate(
         scenario.robot,
         scenario.q0,
@@ -556,6 +632,7 @@ def run_scenario(scenario: Scenario, transition: str | None = None) -> Simulatio
         scenario.stop,
         scenario.constraints,
         scenario.baumgarte,
+        progress,
     )
 
 
