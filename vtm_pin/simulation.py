@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import heapq
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +21,7 @@ from .constraints import check_independent, lock_jacobian
 from .dynamics import compute_energy, compute_M
 from .exceptions import SimulationError
 from .holonomic import FrameConstraint, compute_kinematics, project_initial_state, stack
-from .integrators import Integrator
+from .integrators import Integrator, Rhs
 from .phase import DriveLaw, Phase
 from .robot import Robot
 from .stop import Stop
@@ -151,6 +151,23 @@ class SimulationResult:
     steps: int
     wall_time: float
     stop: Stop | None = None
+
+    def q_at(self, times: Sequence[float] | np.ndarray) -> np.ndarray:
+        """Joint positions at the given times [s], linearly interpolated between samples.
+
+        Exact at sample times; q is continuous across events, so an event time is well
+        defined. Returns shape (len(times), n) [rad].
+
+        Raises:
+            SimulationError: A time lies outside the simulated interval.
+        """
+        times = np.atleast_1d(np.asarray(times, dtype=float))
+        outside = times[(times < self.t[0]) | (times > self.t[-1])]
+        if outside.size:
+            raise SimulationError(
+                f"t = {outside[0]} s is outside the simulated [{self.t[0]}, {self.t[-1]}] s"
+            )
+        return np.column_stack([np.interp(times, self.t, col) for col in self.q.T])
 
 
 class _Hybrid:
@@ -319,6 +336,7 @@ def simulate(
     stop: Stop | None = None,
     constraints: Sequence[FrameConstraint] = (),
     baumgarte: tuple[float, float] = DEFAULT_BAUMGARTE,
+    progress: Callable[[float], None] | None = None,
 ) -> SimulationResult:
     """Simulate the robot from (q0, v0) with prescribed locks, and brakes after a stop signal.
 
@@ -341,6 +359,9 @@ def simulate(
             by more than 1e-6.
         baumgarte: Gains (alpha, beta) [1/s] of the Baumgarte stabilisation of the frame
             constraints between events; (0, 0) integrates the bare index-1 equations.
+        progress: Called with the simulated time t [s] at every right-hand-side evaluation
+            and at the end of every segment, for progress display; it must not change
+            anything (the results do not depend on it).
 
     Returns:
         The sampled motion and event records.
@@ -424,7 +445,7 @@ def simulate(
         t_end = min(queue[0][0], duration) if queue else duration
         phase = h.phase
         segment = integrator.integrate(
-            phase.rhs,
+            phase.rhs if progress is None else _reporting(phase.rhs, progress),
             t,
             phase.pack(h.q, h.v, h.extras),
             t_end,
@@ -457,6 +478,8 @@ def simulate(
         block_extras = phase.unpack_extras(segment.y, h.extras)
         extras.append(block_extras)
         t = float(segment.t[-1])
+        if progress is not None:
+            progress(t)
         h.q, h.v, h.extras = block_q[-1].copy(), block_v[-1].copy(), block_extras[-1].copy()
         if segment.event is not None:
             fired = phase.events[segment.event]
@@ -533,6 +556,16 @@ def _check_energy(
             f"the energy moved) between t = {t[0]:g} s and {t[-1]:g} s with "
             f"{_settings(integrator)}: the step is too large for these dynamics; reduce it"
         )
+
+
+def _reporting(rhs: Rhs, progress: Callable[[float], None]) -> Rhs:
+    """The right-hand side ``rhs``, telling ``progress`` the time of each evaluation."""
+
+    def f(t: float, y: np.ndarray) -> np.ndarray:
+        progress(t)
+        return rhs(t, y)
+
+    return f
 
 
 def _settings(integrator: Integrator) -> str:
