@@ -1,4 +1,5 @@
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -153,3 +154,84 @@ def test_closed_loop_run_writes_drift_plot_and_warns_once(tmp_path, capsys):
     assert summary["constraint_drift"]["position_max"] < 1e-8
     assert summary["events"][0]["impulse_rows"] == ["lock joint_r1"]
     assert summary["events"][0]["impulse_persistent_rows"] == ["loop.x", "loop.z"]
+
+
+def test_run_draws_initial_and_final_poses(tmp_path):
+    out = tmp_path / "out"
+    assert main(["run", str(PAPER), "--out", str(out), "--compare", "naive", "--quiet"]) == 0
+    assert (out / "poses.png").stat().st_size > 10_000
+
+
+def test_json_prints_the_summary_and_quiet_prints_nothing(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", str(PAPER), "--out", str(out), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((out / "summary.json").read_text())
+    assert main(["run", str(PAPER), "--out", str(out), "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == ""
+    assert main(["run", str(PAPER), "--quiet", "--json"]) == 2
+    assert "not allowed with argument" in capsys.readouterr().err
+
+
+def test_progress_bar_on_a_terminal_only(tmp_path, capsys, monkeypatch):
+    import vtm_pin.cli
+
+    monkeypatch.setattr(vtm_pin.cli, "PROGRESS_DELAY", 0.0)
+    out = tmp_path / "out"
+    assert main(["run", str(PAPER), "--out", str(out), "--compare", "naive"]) == 0
+    assert "%|" not in capsys.readouterr().err  # not a terminal: no bar
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert main(["run", str(PAPER), "--out", str(out), "--compare", "naive"]) == 0
+    err = capsys.readouterr().err
+    assert "pendulum3r (kkt):" in err and "pendulum3r (naive):" in err
+    assert "100%|" in err and "t = 2.000 of 2 s" in err
+    assert main(["run", str(PAPER), "--out", str(out), "--json"]) == 0
+    assert "%|" not in capsys.readouterr().err  # --json: no bar
+
+
+def test_interrupt_exits_130_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    import vtm_pin.cli
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(vtm_pin.cli, "run_scenario", interrupted)
+    out = tmp_path / "out"
+    assert main(["run", str(PAPER), "--out", str(out)]) == 130
+    assert capsys.readouterr().err == "vtm-pin: interrupted; nothing written\n"
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_help_explains_units_and_exit_codes(capsys):
+    assert main(["--help"]) == 0
+    text = capsys.readouterr().out
+    assert "exit status:" in text and "130" in text and "rates rad/s" in text
+    assert main(["run", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "step [s]" in text and "[rad for angles, rad/s for rates]" in text
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.startswith("vtm-pin 0.")
+
+
+def test_list_robots_and_scenarios(capsys):
+    assert main(["list", "robots"]) == 0
+    text = capsys.readouterr().out
+    assert "planar_3r       3       tip" in text and "rx160l" in text
+    assert "ur5" in text.split("example-robot-data names", 1)[1]
+    assert main(["list", "scenarios", "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert [e["scenario"] for e in listed] == sorted(p.stem for p in SCENARIOS.glob("*.yaml"))
+    paper = next(e for e in listed if e["scenario"] == "pendulum3r")
+    assert paper["robot"] == "planar_3r" and paper["duration [s]"] == "2"
+
+
+def test_list_scenarios_marks_invalid_files_and_bad_folders(tmp_path, capsys):
+    (tmp_path / "good.yaml").write_text("robot: planar_3r\ninitial: {q: [0, 0, 0]}\nduration: 1\n")
+    (tmp_path / "bad.yaml").write_text("robot: planar_3r\nduration: -1\n")
+    assert main(["list", "scenarios", "--dir", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].split() == ["bad", "-", "-", "INVALID:", "'initial'", "is", "missing"]
+    assert lines[2].split() == ["good", "planar_3r", "1"]
+    assert main(["list", "scenarios", "--dir", str(tmp_path / "nowhere")]) == 1
+    assert capsys.readouterr().err.strip().endswith("nowhere: is not a folder")

@@ -5,6 +5,7 @@ import scipy.integrate
 from conftest import robot
 
 from vtm_pin import RK4, LockEvent, SimulationError, compute_energy_momentum, simulate
+from vtm_pin.integrators import DOP853
 
 Q0 = np.full(3, np.pi / 6)  # [rad], the paper's release pose
 PAPER_EVENTS = [LockEvent(0.8, ("joint2",)), LockEvent(1.3, ("joint3",))]
@@ -149,3 +150,16 @@ def test_bad_arguments_raise_simulation_errors():
         run(1e-3, [LockEvent(0.1, ("joint1",)), LockEvent(0.2, ("joint1",))])
     with pytest.raises(SimulationError, match=r"Duration -1\.0 is not a positive number"):
         run(1e-3, duration=-1.0)
+
+
+@pytest.mark.parametrize("integrator", [RK4(1e-3), DOP853(1e-8, 1e-10)], ids=["rk4", "dop853"])
+def test_progress_callback_sees_time_advance_and_changes_nothing(integrator):
+    q0 = np.full(3, np.pi / 6)
+    seen = []
+    args = (robot("planar_3r"), q0, np.zeros(3), 2.0, PAPER_EVENTS, integrator)
+    plain = simulate(*args)
+    watched = simulate(*args, progress=seen.append)
+    np.testing.assert_array_equal(watched.q, plain.q)
+    np.testing.assert_array_equal(watched.t, plain.t)
+    assert len(seen) >= plain.rhs_evals and seen[-1] == 2.0
+    assert max(seen) == 2.0 and min(seen) >= 0.0

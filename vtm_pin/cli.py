@@ -1,25 +1,32 @@
-"""Command-line interface: ``vtm-pin run SCENARIO.yaml [--out DIR] [--transition NAME]``."""
+"""Command-line interface: ``vtm-pin run SCENARIO.yaml`` and ``vtm-pin list robots|scenarios``."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
+import math
 import os
 import shutil
 import sys
 import tempfile
+import textwrap
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from tqdm import tqdm
 
 from .analysis import compute_energy_momentum
+from .drawing import plot_poses
 from .exceptions import ScenarioError, VtmError, VtmWarning
 from .integrators import INTEGRATORS
 from .plotting import (
+    Runs,
     plot_brake_states,
     plot_constraint_drift,
     plot_energy,
@@ -35,13 +42,41 @@ from .report import (
     integrator_settings,
     write_trajectory,
 )
-from .scenario import build_integrator, load_scenario, run_scenario
+from .robot import ROBOTS_DIR, list_example_robots, list_local_robots, load_robot
+from .scenario import (
+    SCENARIOS_DIR,
+    Scenario,
+    build_integrator,
+    list_scenarios,
+    load_scenario,
+    run_scenario,
+)
 from .simulation import SimulationResult
-from .stopping import compute_stopping_report
+from .stopping import StoppingReport, compute_stopping_report
 from .transitions import TRANSITIONS
 
-#: Exit codes: 0 success, 1 a user error (bad scenario, robot, option value), 2 bad usage.
-EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
+#: Exit codes: success, a user error (bad scenario, robot or option value), bad usage of the
+#: command line, interrupted by Ctrl-C. Nothing is written unless the code is EXIT_OK.
+EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: A run shows a progress bar (on a terminal) once it has taken this long [s].
+PROGRESS_DELAY = 1.0
+
+_EPILOG = """\
+units: SI throughout - time s, angles rad, rates rad/s, torques N m, impulses N m s, energy J,
+lengths m. Motor-side values are joint-side values times the gear ratio.
+
+exit status:
+  0    success
+  1    user error: bad scenario file, unknown robot or joint, bad option value
+       (one line on stderr; nothing is written)
+  2    bad command-line usage
+  130  interrupted (Ctrl-C); nothing is written
+
+examples:
+  vtm-pin run scenarios/pendulum3r.yaml --compare naive
+  vtm-pin run scenarios/rx160l_estop_cat0.yaml --integrator dop853 --rtol 1e-8 --json
+  vtm-pin list scenarios
+"""
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -49,7 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     try:
         args = parser.parse_args(argv)
-    except SystemExit as exc:  # argparse has printed its one-line usage error
+    except SystemExit as exc:  # argparse has printed its usage error, or --help / --version
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
     with warnings.catch_warnings():
         warnings.simplefilter("always", VtmWarning)
@@ -59,6 +94,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         except VtmError as exc:
             print(f"vtm-pin: error: {exc}", file=sys.stderr)
             return EXIT_ERROR
+        except KeyboardInterrupt:
+            print("vtm-pin: interrupted; nothing written", file=sys.stderr)
+            return EXIT_INTERRUPTED
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # type: ignore[no-untyped-def]
@@ -67,37 +105,55 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 
 def _parser() -> argparse.ArgumentParser:
+    formatter = argparse.RawDescriptionHelpFormatter
     parser = argparse.ArgumentParser(
         prog="vtm-pin",
-        description="Emergency-stop simulator: joints lock one after another and the free "
-        "joints' momentum is conserved at each lock (SI units: s, rad, rad/s, N m s, J).",
+        description=_wrap(
+            "Emergency-stop simulator: joints lock one after another, and at each lock the "
+            "velocity jumps so that the free joints' momentum is conserved (A. Mueller's "
+            "transition conditions, on Pinocchio)."
+        ),
+        epilog=_EPILOG,
+        formatter_class=formatter,
     )
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {version('vtm_pin')}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     run = sub.add_parser(
         "run",
-        help="simulate a scenario file and write its summary, trajectory and plots",
-        description="Simulate SCENARIO.yaml; print a per-event table and write summary.json, "
-        "trajectory.csv and PNG plots into --out.",
+        help="simulate a scenario file; print its summary, write results and plots",
+        description=_wrap(
+            "Simulate SCENARIO.yaml. Prints a per-event table (and a stopping report if the "
+            "scenario has a stop) and writes summary.json, trajectory.csv and PNG plots into "
+            "--out. Everything is written to a staging folder first and moved in only when "
+            "all succeeded. A progress bar appears on runs longer than a second."
+        ),
+        epilog=_EPILOG,
+        formatter_class=formatter,
     )
-    run.add_argument("scenario", type=Path, help="scenario YAML file")
+    run.add_argument("scenario", type=Path, metavar="SCENARIO.yaml", help="scenario file")
     run.add_argument(
         "--out",
         type=Path,
         default=None,
+        metavar="DIR",
         help="output folder (default: results/<scenario name>); files in it are replaced",
     )
     run.add_argument(
         "--transition",
         choices=sorted(TRANSITIONS),
         default=None,
-        help="transition rule at a lock, overriding the scenario's (default: the scenario's)",
+        help="velocity jump at a lock, overriding the scenario's: kkt (default), projected and "
+        "minimal are the paper's three equivalent momentum-consistent forms; naive zeroes the "
+        "locked rates and keeps the others (Drake, Gazebo)",
     )
     run.add_argument(
         "--compare",
         choices=sorted(TRANSITIONS),
         action="append",
         default=[],
-        help="also run with this rule and overlay it in the plots (repeatable), e.g. naive",
+        metavar="RULE",
+        help="also run with this transition rule and overlay it in the plots (repeatable), "
+        "e.g. --compare naive",
     )
     run.add_argument(
         "--integrator",
@@ -106,49 +162,74 @@ def _parser() -> argparse.ArgumentParser:
         help="integrator, overriding the scenario's: rk4 or euler (fixed step --dt) or dop853 "
         "(adaptive, --rtol / --atol)",
     )
-    run.add_argument("--dt", type=float, default=None, help="fixed step of rk4 / euler [s]")
-    run.add_argument("--rtol", type=float, default=None, help="dop853 relative tolerance [-]")
+    run.add_argument("--dt", type=float, default=None, metavar="S", help="rk4/euler step [s]")
     run.add_argument(
-        "--atol", type=float, default=None, help="dop853 absolute tolerance [rad, rad/s]"
+        "--rtol", type=float, default=None, metavar="X", help="dop853 relative tolerance [-]"
+    )
+    run.add_argument(
+        "--atol",
+        type=float,
+        default=None,
+        metavar="X",
+        help="dop853 absolute tolerance [rad for angles, rad/s for rates]",
+    )
+    output = run.add_mutually_exclusive_group()
+    output.add_argument(
+        "--quiet", action="store_true", help="print nothing but warnings and errors"
+    )
+    output.add_argument(
+        "--json",
+        action="store_true",
+        help="print summary.json to stdout instead of the tables (no progress bar)",
     )
     run.set_defaults(func=_run)
+
+    listing = sub.add_parser(
+        "list",
+        help="list the robots or scenarios that can be run",
+        description=_wrap(
+            "List the shipped robots (and the example-robot-data names), or the scenario "
+            "files of a folder."
+        ),
+        epilog=_EPILOG,
+        formatter_class=formatter,
+    )
+    listing.add_argument("what", choices=["robots", "scenarios"])
+    listing.add_argument(
+        "--dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help=f"scenarios: folder to list (default: {SCENARIOS_DIR.name}/ of the project)",
+    )
+    listing.add_argument(
+        "--check",
+        action="store_true",
+        help="robots: also load every example-robot-data model and say which ones vtm-pin "
+        "accepts (takes a minute)",
+    )
+    listing.add_argument("--json", action="store_true", help="print the list as JSON")
+    listing.set_defaults(func=_list)
     return parser
 
 
+def _wrap(text: str) -> str:
+    return textwrap.fill(text, width=88)
+
+
 def _run(args: argparse.Namespace) -> int:
-    scenario = load_scenario(args.scenario)
-    overrides = {
-        key: value
-        for key, value in [
-            ("method", args.integrator),
-            ("dt", args.dt),
-            ("rtol", args.rtol),
-            ("atol", args.atol),
-        ]
-        if value is not None
-    }
-    if overrides:
-        spec = {"method": overrides.get("method", scenario.integrator.name), **overrides}
-        if spec["method"] == scenario.integrator.name and "method" not in overrides:
-            spec = {**integrator_settings(scenario.integrator), **overrides}
-        for key, value in spec.items():
-            if key != "method" and not value > 0:
-                raise ScenarioError("command line", f"--{key}", f"{value} is not > 0")
-        try:
-            integrator = build_integrator(spec, scenario.duration, "command line")
-        except ScenarioError as exc:
-            option = "--" + exc.key.split(".")[-1]
-            raise ScenarioError("command line", option, exc.problem) from exc
-        scenario = dataclasses.replace(scenario, integrator=integrator)
+    scenario = _with_integrator_options(load_scenario(args.scenario), args)
     out = args.out if args.out is not None else Path("results") / scenario.name
     if out.exists() and not out.is_dir():
-        print(f"vtm-pin: error: --out '{out}' exists and is not a folder", file=sys.stderr)
-        return EXIT_ERROR
-    result = run_scenario(scenario, args.transition)
-    others = {
-        name: run_scenario(scenario, name) for name in args.compare if name != result.transition
-    }
-    results = {result.transition: result, **others}
+        raise ScenarioError("command line", "--out", f"'{out}' exists and is not a folder")
+    show = not (args.quiet or args.json)
+    rules = [args.transition or scenario.transition]
+    rules += [name for name in dict.fromkeys(args.compare) if name != rules[0]]
+    results: dict[str, SimulationResult] = {}
+    for rule in rules:
+        with _progress(scenario, rule, show) as progress:
+            results[rule] = run_scenario(scenario, rule, progress)
+    result, others = results[rules[0]], {rule: results[rule] for rule in rules[1:]}
     runs = {name: (r, compute_energy_momentum(scenario.robot, r)) for name, r in results.items()}
     stopping = {}
     if scenario.stop is not None:
@@ -156,13 +237,87 @@ def _run(args: argparse.Namespace) -> int:
             name: compute_stopping_report(scenario.robot, r, scenario.brakes, scenario.tool_frame)
             for name, r in results.items()
         }
-    summary = build_summary(scenario, result, runs[result.transition][1], others, stopping)
+    summary = build_summary(scenario, result, runs[rules[0]][1], others, stopping)
+    figures = _figures(scenario, results, runs, stopping)
+    written = _write_outputs(out, summary, results, rules[0], figures)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    elif not args.quiet:
+        print(format_summary(summary))
+        for name, report in stopping.items():
+            print()
+            print(format_stopping(name, report))
+        print(f"\nwrote {out}/: {', '.join(written)}")
+    return EXIT_OK
 
+
+def _with_integrator_options(scenario: Scenario, args: argparse.Namespace) -> Scenario:
+    """The scenario with --integrator / --dt / --rtol / --atol applied."""
+    options = {"method": args.integrator, "dt": args.dt, "rtol": args.rtol, "atol": args.atol}
+    overrides = {key: value for key, value in options.items() if value is not None}
+    if not overrides:
+        return scenario
+    spec = {"method": overrides.get("method", scenario.integrator.name), **overrides}
+    if "method" not in overrides:
+        spec = {**integrator_settings(scenario.integrator), **overrides}
+    for key, value in spec.items():
+        if key != "method" and not value > 0:
+            raise ScenarioError("command line", f"--{key}", f"{value} is not > 0")
+    try:
+        integrator = build_integrator(spec, scenario.duration, "command line")
+    except ScenarioError as exc:
+        option = "--" + exc.key.split(".")[-1]
+        raise ScenarioError("command line", option, exc.problem) from exc
+    return dataclasses.replace(scenario, integrator=integrator)
+
+
+@contextmanager
+def _progress(scenario: Scenario, rule: str, show: bool) -> Iterator[Callable[[float], None]]:
+    """A callback moving a progress bar of simulated time.
+
+    The bar is drawn on stderr when it is a terminal, once the run has taken
+    :data:`PROGRESS_DELAY` seconds.
+    """
+    total = scenario.duration
+    bar = tqdm(
+        total=total,
+        desc=f"{scenario.name} ({rule})",
+        bar_format="{desc}: {percentage:3.0f}%|{bar}| t = {n:.3f} of {total:g} s "
+        "[{elapsed} elapsed, {remaining} left]",
+        delay=PROGRESS_DELAY,
+        leave=False,
+        file=sys.stderr,
+        disable=not (show and sys.stderr.isatty()),
+    )
+    reached = [0.0]
+
+    def progress(t: float) -> None:
+        if t >= reached[0] + 1e-3 * total:  # at most 1000 updates per run
+            bar.update(t - reached[0])
+            reached[0] = t
+
+    try:
+        yield progress
+        bar.update(total - reached[0])  # the run is done: show 100 % before the bar goes
+        bar.refresh()
+    finally:
+        bar.close()
+
+
+def _figures(
+    scenario: Scenario,
+    results: dict[str, SimulationResult],
+    runs: Runs,
+    stopping: Mapping[str, StoppingReport],
+) -> dict[str, Figure]:
+    """The PNG plots of a run, by file name."""
+    result = next(iter(results.values()))
     figures = {
         "joint_angles.png": plot_joint_angles(runs),
         "joint_rates.png": plot_joint_rates(runs),
         "momenta.png": plot_momenta(runs),
         "energy.png": plot_energy(runs),
+        "poses.png": plot_poses(scenario.robot, results, scenario.tool_frame),
     }
     ratio = scenario.robot.gear_ratio
     if np.any(ratio != 1.0):
@@ -173,14 +328,7 @@ def _run(args: argparse.Namespace) -> int:
     if scenario.stop is not None:
         figures["brakes.png"] = plot_brake_states(result)
         figures["tcp_path.png"] = plot_tcp_path(stopping)
-    _write_outputs(out, summary, results, result.transition, figures)
-    print(format_summary(summary))
-    for name, report in stopping.items():
-        print()
-        print(format_stopping(name, report))
-    written = ["summary.json", "trajectory.csv", *figures]
-    print(f"\nwrote {out}/: {', '.join(written)}")
-    return EXIT_OK
+    return figures
 
 
 def _write_outputs(
@@ -189,8 +337,11 @@ def _write_outputs(
     results: dict[str, SimulationResult],
     main_rule: str,
     figures: dict[str, Figure],
-) -> None:
-    """Write everything into a staging folder, then move it into ``out`` (no partial output)."""
+) -> list[str]:
+    """Write everything into a staging folder, then move it into ``out`` (no partial output).
+
+    Returns the names of the files written.
+    """
     parent = out.resolve().parent
     parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
@@ -202,10 +353,64 @@ def _write_outputs(
         for filename, figure in figures.items():
             figure.savefig(staging / filename, dpi=120)
         out.mkdir(parents=True, exist_ok=True)
-        for item in sorted(staging.iterdir()):
-            os.replace(item, out / item.name)
+        written = sorted(item.name for item in staging.iterdir())
+        for name in written:
+            os.replace(staging / name, out / name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+    return written
+
+
+def _list(args: argparse.Namespace) -> int:
+    if args.what == "scenarios":
+        rows = _scenario_rows(args.dir or SCENARIOS_DIR)
+        header: list[object] = ["scenario", "robot", "duration [s]", "description"]
+    else:
+        rows = _robot_rows(args.check, not args.json)
+        header = ["robot", "joints", "tool frame", "source"]
+    if args.json:
+        print(json.dumps([dict(zip(map(str, header), row, strict=True)) for row in rows], indent=2))
+        return EXIT_OK
+    widths = [max(len(str(x)) for x in column) for column in zip(header, *rows, strict=True)]
+    for row in [header, *rows]:
+        cells = [str(x).ljust(w) for x, w in zip(row[:-1], widths[:-1], strict=True)]
+        print("  ".join([*cells, str(row[-1])]))
+    if args.what == "robots" and not args.check:
+        names = ", ".join(list_example_robots())
+        print(
+            "\n"
+            + _wrap(
+                "example-robot-data names (fixed-base models whose joints are all 1-DoF load; "
+                f"floating bases are refused; --check tries each): {names}"
+            )
+        )
+    return EXIT_OK
+
+
+def _scenario_rows(folder: Path) -> list[list[object]]:
+    rows: list[list[object]] = []
+    for entry in list_scenarios(folder):
+        duration = f"{entry.duration:g}" if math.isfinite(entry.duration) else "-"
+        text = entry.description if entry.valid else f"INVALID: {entry.description}"
+        rows.append([entry.name, entry.robot or "-", duration, text])
+    return rows
+
+
+def _robot_rows(check: bool, show: bool) -> list[list[object]]:
+    rows: list[list[object]] = []
+    for name in list_local_robots():
+        robot = load_robot(name)
+        rows.append([name, robot.nv, robot.tool_frame, f"{ROBOTS_DIR.name}/{name}.urdf"])
+    if check:
+        names = list_example_robots()
+        for name in tqdm(names, desc="loading", file=sys.stderr, disable=not show, leave=False):
+            try:
+                robot = load_robot(name)
+            except VtmError as exc:
+                rows.append([name, "-", "-", f"refused: {str(exc).splitlines()[0]}"])
+                continue
+            rows.append([name, robot.nv, robot.tool_frame, "example-robot-data"])
+    return rows
 
 
 if __name__ == "__main__":

@@ -352,7 +352,8 @@ def list_scenarios(folder: str | Path = SCENARIOS_DIR) -> list[ScenarioEntry]:
                 raise ScenarioError(str(path), "", "a scenario must be a mapping")
             _check_schema(raw, str(path))
         except ScenarioError as exc:
-            entries.append(ScenarioEntry(path.stem, path, "", math.nan, str(exc), False))
+            problem = f"'{exc.key}': {exc.problem}" if exc.key else exc.problem
+            entries.append(ScenarioEntry(path.stem, path, "", math.nan, problem, False))
             continue
         description = " ".join(str(raw.get("description", "")).split())
         entries.append(
