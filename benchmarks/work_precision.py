@@ -13,66 +13,33 @@ switched on with ``eq_active``) and the ratio of wall times at equal accuracy is
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import statistics
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-from matplotlib.figure import Figure
 
 import vtm_pin as vp
-from vtm_pin.integrators import DOP853, SemiImplicitEuler
+from vtm_pin.benchmark import (
+    LADDERS,
+    WorkPoint,
+    compute_reference,
+    format_work_precision,
+    measure_work_precision,
+    time_to_accuracy,
+)
+from vtm_pin.plotting import plot_work_precision
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ["pendulum3r", "rx160l_paper_locks", "rx160l_estop_cat0"]
-LADDERS = {
-    "rk4": [1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4],
-    "euler": [1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5],
-    "dop853": [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12],
-}
 MUJOCO_DT = [5e-2, 2.5e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4]
 TARGETS = [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10]  # [rad]
 
 
-def integrator(method: str, setting: float) -> vp.integrators.Integrator:
-    if method == "rk4":
-        return vp.RK4(setting)
-    if method == "euler":
-        return SemiImplicitEuler(setting)
-    return DOP853(setting, setting * 1e-2)
-
-
-def measure(scenario: vp.Scenario, method: str, setting: float, q_ref: np.ndarray, repeats: int):
-    integ = integrator(method, setting)
-    times, result = [], None
-    for _ in range(repeats):
-        result = vp.simulate(
-            scenario.robot,
-            scenario.q0,
-            scenario.v0,
-            scenario.duration,
-            scenario.events,
-            integ,
-            "kkt",
-            scenario.brakes,
-            scenario.stop,
-        )
-        times.append(result.wall_time)
-    assert result is not None
-    return {
-        "method": method,
-        "setting": setting,
-        "error": float(np.max(np.abs(result.q[-1] - q_ref))),
-        "rhs_evals": result.rhs_evals,
-        "steps": result.steps,
-        "wall_time": statistics.median(times),
-    }
-
-
-def measure_mujoco(scenario: vp.Scenario, q_ref: np.ndarray, repeats: int) -> list[dict]:
+def measure_mujoco(scenario: vp.Scenario, q_ref: np.ndarray, repeats: int) -> list[WorkPoint]:
     try:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         import mujoco_reference
@@ -89,47 +56,16 @@ def measure_mujoco(scenario: vp.Scenario, q_ref: np.ndarray, repeats: int) -> li
             except ValueError:  # an event off this dt grid: MuJoCo cannot land on it
                 continue
             rows.append(
-                {
-                    "method": variant,
-                    "setting": dt,
-                    "error": float(np.max(np.abs(runs[-1].q - q_ref))),
-                    "rhs_evals": 4 * runs[-1].steps,
-                    "steps": runs[-1].steps,
-                    "wall_time": statistics.median(r.wall_time for r in runs),
-                }
+                WorkPoint(
+                    variant,
+                    dt,
+                    float(np.max(np.abs(runs[-1].q - q_ref))),
+                    4 * runs[-1].steps,
+                    runs[-1].steps,
+                    statistics.median(r.wall_time for r in runs),
+                )
             )
     return rows
-
-
-def time_at(rows: list[dict], method: str, target: float) -> float:
-    """Wall time [s] the method needs for error <= target (log-log interpolation), or NaN."""
-    pts = sorted((r["error"], r["wall_time"]) for r in rows if r["method"] == method)
-    pts = [p for p in pts if p[0] > 0]
-    if not pts or target < pts[0][0]:
-        return float("nan")
-    best = float("nan")
-    for (e1, w1), (e2, w2) in itertools.pairwise(pts):
-        if e1 <= target <= e2:
-            s = (np.log(target) - np.log(e1)) / (np.log(e2) - np.log(e1))
-            best = float(np.exp(np.log(w1) + s * (np.log(w2) - np.log(w1))))
-            break
-    cheaper = [w for e, w in pts if e <= target]
-    candidates = [w for w in [best, *cheaper] if np.isfinite(w)]
-    return min(candidates) if candidates else float("nan")
-
-
-def plot(name: str, rows: list[dict], path: Path) -> None:
-    fig = Figure(figsize=(7, 5), layout="constrained")
-    ax = fig.add_subplot()
-    for method in dict.fromkeys(r["method"] for r in rows):
-        pts = sorted((r["error"], r["wall_time"]) for r in rows if r["method"] == method)
-        ax.loglog([p[0] for p in pts], [1e3 * p[1] for p in pts], "o-", label=method)
-    ax.set_xlabel("error at final time max |q - q_ref| [rad]")
-    ax.set_ylabel("wall time [ms] (median)")
-    ax.set_title(f"Work-precision: {name}")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend()
-    fig.savefig(path, dpi=120)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -142,28 +78,14 @@ def main(argv: list[str] | None = None) -> None:
     report = {}
     for name in args.scenarios:
         scenario = vp.load_scenario(ROOT / "scenarios" / f"{name}.yaml")
-        ref = vp.simulate(
-            scenario.robot,
-            scenario.q0,
-            scenario.v0,
-            scenario.duration,
-            scenario.events,
-            DOP853(1e-13, 1e-15),
-            "kkt",
-            scenario.brakes,
-            scenario.stop,
-        )
-        q_ref = ref.q[-1]
-        rows = []
+        q_ref = compute_reference(scenario)
         started = time.perf_counter()
-        for method, ladder in LADDERS.items():
-            for setting in ladder:
-                rows.append(measure(scenario, method, setting, q_ref, args.repeats))
-                print(
-                    f"\r{name}: {len(rows)} runs, {time.perf_counter() - started:.0f} s",
-                    end="",
-                    file=sys.stderr,
-                )
+
+        def progress(done: int, total: int, name: str = name, started: float = started) -> None:
+            elapsed = time.perf_counter() - started
+            print(f"\r{name}: {done}/{total} settings, {elapsed:.0f} s", end="", file=sys.stderr)
+
+        rows = measure_work_precision(scenario, q_ref, LADDERS, args.repeats, progress)
         if scenario.stop is None:
             rows += measure_mujoco(scenario, q_ref, args.repeats)
         print(file=sys.stderr)
@@ -171,35 +93,20 @@ def main(argv: list[str] | None = None) -> None:
             f"\n{name} (T = {scenario.duration} s, {len(scenario.events)} prescribed locks, "
             f"{'brakes' if scenario.brakes else 'no brakes'}); error vs DOP853 rtol 1e-13"
         )
-        print(
-            f"{'method':<13} {'dt / rtol':>9} {'error [rad]':>12} {'rhs evals':>10} "
-            f"{'steps':>7} {'wall [ms]':>10}"
-        )
-        for r in rows:
-            print(
-                f"{r['method']:<13} {r['setting']:>9.0e} {r['error']:>12.2e} "
-                f"{r['rhs_evals']:>10d} {r['steps']:>7d} {1e3 * r['wall_time']:>10.3f}"
-            )
-        methods = list(dict.fromkeys(r["method"] for r in rows))
-        print("\nwall time [ms] to reach an error <= target (log-log interpolated):")
-        print(f"{'target':>8} " + " ".join(f"{m:>13}" for m in methods) + "   ratio")
+        print(format_work_precision(rows, TARGETS))
+        methods = list(dict.fromkeys(r.method for r in rows))
         ratios = {}
-        for target in TARGETS:
-            t = {m: time_at(rows, m, target) for m in methods}
-            ours = min((t[m] for m in LADDERS if np.isfinite(t[m])), default=float("nan"))
-            ratio = t.get("mujoco-exact", float("nan")) / ours
-            ratios[target] = ratio
-            cells = " ".join(
-                f"{1e3 * t[m]:>13.3f}" if np.isfinite(t[m]) else f"{'-':>13}" for m in methods
-            )
-            print(
-                f"{target:>8.0e} {cells}   {ratio:5.2f}"
-                if np.isfinite(ratio)
-                else f"{target:>8.0e} {cells}"
-            )
-        plot(name, rows, args.out / f"work_precision_{name}.png")
+        if "mujoco-exact" in methods:
+            print("\nMuJoCo exact locks / fastest vtm_pin integrator at equal accuracy:")
+            for target in TARGETS:
+                ours = [time_to_accuracy(rows, m, target) for m in LADDERS]
+                best = min((t for t in ours if np.isfinite(t)), default=float("nan"))
+                ratios[target] = time_to_accuracy(rows, "mujoco-exact", target) / best
+                print(f"{target:>8.0e} {ratios[target]:6.2f}")
+        figure = plot_work_precision(rows, name)
+        figure.savefig(args.out / f"work_precision_{name}.png", dpi=120)
         report[name] = {
-            "rows": rows,
+            "rows": [asdict(r) for r in rows],
             "mujoco_over_best_vtm_pin": {str(k): v for k, v in ratios.items()},
         }
     (args.out / "work_precision.json").write_text(json.dumps(report, indent=2))

@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from .analysis import compute_energy_momentum
 from .drawing import plot_poses
-from .exceptions import ScenarioError, VtmError, VtmWarning
+from .exceptions import ScenarioError, UnsupportedJoint, VtmError, VtmWarning
 from .integrators import INTEGRATORS
 from .plotting import (
     Runs,
@@ -403,9 +403,13 @@ def _robot_rows(check: bool, show: bool) -> list[list[object]]:
         rows.append([name, robot.nv, robot.tool_frame, f"{ROBOTS_DIR.name}/{name}.urdf"])
     if check:
         names = list_example_robots()
-        for name in tqdm(names, desc="loading", file=sys.stderr, disable=not show, leave=False):
+        shown = show and sys.stderr.isatty()
+        for name in tqdm(names, desc="loading", file=sys.stderr, disable=not shown, leave=False):
             try:
                 robot = load_robot(name)
+            except UnsupportedJoint as exc:
+                rows.append([name, "-", "-", f"refused: joint '{exc.joint}' is a {exc.kind}"])
+                continue
             except VtmError as exc:
                 rows.append([name, "-", "-", f"refused: {str(exc).splitlines()[0]}"])
                 continue

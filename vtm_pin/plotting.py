@@ -6,7 +6,7 @@ headless and show in notebooks alike. No numerics happen here.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -14,6 +14,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from .analysis import EnergyMomentum
+from .benchmark import COST_KEYS, WorkPoint
 from .brakes import BrakeMode
 from .simulation import SimulationResult
 from .stopping import StoppingReport
@@ -126,6 +127,36 @@ def plot_constraint_drift(result: SimulationResult) -> Figure:
     ax.set_title("Drift of the loop closures and dockings")
     ax.grid(alpha=0.3, which="both")
     ax.legend()
+    return fig
+
+
+def plot_work_precision(points: Sequence[WorkPoint], title: str) -> Figure:
+    """Wall time [ms] against final-time error [rad], one line per method (log-log)."""
+    fig = Figure(figsize=(7, 5), layout="constrained")
+    ax = fig.add_subplot()
+    for method in dict.fromkeys(p.method for p in points):
+        pts = sorted((p.error, p.wall_time) for p in points if p.method == method)
+        ax.loglog([e for e, _ in pts], [1e3 * w for _, w in pts], "o-", label=method)
+    ax.set_xlabel("error at final time max |q - q_ref| [rad]")
+    ax.set_ylabel("wall time [ms] (median)")
+    ax.set_title(f"Work-precision: {title}")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    return fig
+
+
+def plot_transition_costs(rows: Sequence[Mapping[str, float]], title: str) -> Figure:
+    """Median time [us] of one transition per rule and one right-hand side, against n."""
+    fig = Figure(figsize=(8, 5), layout="constrained")
+    ax = fig.add_subplot()
+    ns = [r["n"] for r in rows]
+    for key in COST_KEYS:
+        ax.loglog(ns, [1e6 * r[key] for r in rows], "o-", label=key)
+    ax.set_xlabel("number of joints n")
+    ax.set_ylabel("median time [us]")
+    ax.set_title(title)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize="small")
     return fig
 
 
