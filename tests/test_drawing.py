@@ -4,7 +4,13 @@ from conftest import SCENARIOS, robot
 from matplotlib.figure import Figure
 
 from vtm_pin import SimulationError, load_scenario, run_scenario
-from vtm_pin.drawing import compute_skeleton, compute_tool_path, draw_robot, plot_poses
+from vtm_pin.drawing import (
+    compute_skeleton,
+    compute_tool_path,
+    draw_robot,
+    plot_poses,
+    plot_snapshots,
+)
 from vtm_pin.stopping import compute_stopping_report
 
 #: Forward kinematics against closed-form geometry: round-off of a few products of sines [m].
@@ -103,3 +109,20 @@ def test_q_at_interpolates_samples_and_refuses_times_outside():
     np.testing.assert_allclose(result.q_at(mid)[0], 0.5 * (result.q[10] + result.q[11]))
     with pytest.raises(SimulationError, match=r"t = 2.5 s is outside the simulated \[0.0, 2.0\] s"):
         result.q_at([1.0, 2.5])
+
+
+def test_snapshots_put_each_rule_in_its_own_panel_and_render(tmp_path):
+    scenario = load_scenario(SCENARIOS / "pendulum3r.yaml")
+    results = {rule: run_scenario(scenario, rule) for rule in ("kkt", "naive")}
+    fig = plot_snapshots(scenario.robot, results, [0.0, 0.8, 1.3, 2.0])
+    assert [ax.get_title() for ax in fig.axes] == [
+        "kkt: t = 0, 0.8, 1.3, 2 s",
+        "naive: t = 0, 0.8, 1.3, 2 s",
+    ]
+    labels = [t.get_text() for t in fig.axes[1].texts]
+    assert labels == [" t = 0 s", " t = 0.8 s", " t = 1.3 s", " t = 2 s"]
+    fig.savefig(tmp_path / "snapshots.png")  # layout and equal aspect must be drawable
+    arm = load_scenario(SCENARIOS / "rx160l_paper_locks.yaml")
+    fig = plot_snapshots(arm.robot, {"kkt": run_scenario(arm)}, [0.0, 0.3])
+    assert fig.axes[0].name == "3d"
+    fig.savefig(tmp_path / "arm.png")

@@ -219,6 +219,38 @@ def plot_poses(
     return fig
 
 
+def plot_snapshots(
+    robot: Robot,
+    results: Mapping[str, SimulationResult],
+    times: Sequence[float],
+    tool_frame: str | None = None,
+) -> Figure:
+    """One panel per transition rule: the robot at the given times [s], and its tool path.
+
+    Poses get rising opacity in time order; each tool position is labelled with its time.
+    Planar robots are drawn in their plane, others in 3D.
+    """
+    paths = [compute_tool_path(robot, r.q, tool_frame) for r in results.values()]
+    view = _auto_view(robot, paths)
+    fig = Figure(figsize=(5.5 * len(results), 5.5), layout="constrained")
+    first: Axes | None = None
+    for k, (name, result) in enumerate(results.items()):
+        if view == "3d":
+            ax = fig.add_subplot(1, len(results), k + 1, projection="3d")
+        else:
+            ax = fig.add_subplot(1, len(results), k + 1, sharex=first, sharey=first)
+            _style_plane(ax, view, adjustable="box")  # shared axes cannot adjust limits
+            first = first or ax
+        poses = result.q_at(times)
+        draw_robot(robot, poses, ax=ax, color=f"C{k}", path=result.q, view=view)
+        dims = [0, 1, 2] if view == "3d" else [_AXES[c] for c in view]
+        for t, qi in zip(times, poses, strict=True):
+            tip = compute_skeleton(robot, qi, tool_frame).tool[dims]
+            ax.text(*tip, f" t = {t:g} s", fontsize="small", color=f"C{k}")
+        ax.set_title(f"{name}: t = {', '.join(f'{t:g}' for t in times)} s", fontsize="medium")
+    return fig
+
+
 def _auto_view(robot: Robot, points: list[np.ndarray]) -> str:
     """The robot's plane if it and ``points`` [m] stay in one, else ``"3d"``.
 
@@ -240,11 +272,15 @@ def _new_axes(view: str) -> Axes:
     if view == "3d":
         return fig.add_subplot(projection="3d")
     ax = fig.add_subplot()
-    ax.set_aspect("equal", adjustable="datalim")
+    _style_plane(ax, view)
+    return ax
+
+
+def _style_plane(ax: Axes, view: str, adjustable: str = "datalim") -> None:
+    ax.set_aspect("equal", adjustable=adjustable)  # type: ignore[arg-type]
     ax.grid(alpha=0.3)
     ax.set_xlabel(f"{view[0]} [m]")
     ax.set_ylabel(f"{view[1]} [m]")
-    return ax
 
 
 def _label_axes(ax: Axes) -> None:
