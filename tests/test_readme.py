@@ -114,3 +114,32 @@ def test_ci_runs_the_readme_test_command():
     assert len(commands) == 2
     assert commands[1] in (ROOT / ".ci" / "run").read_text()
     assert "vtm-pin run scenarios/pendulum3r.yaml" in commands[0]
+
+
+#: RMS pixel difference (0-255) allowed between the README's pictures and a fresh run: 0 on
+#: one machine; room for font anti-aliasing of another matplotlib build. Measured: halving
+#: dt moves lines by sub-pixels (RMS 0.04); the naive run replaced by another rule gives 18.
+PICTURE_RMS = 2.0
+
+
+def test_readme_pictures_are_what_the_first_command_draws(tmp_path):
+    from matplotlib.testing.compare import compare_images
+
+    from vtm_pin.cli import main
+
+    command = re.findall(r"```bash\n(.+?)\n```", README)[0]
+    arguments = command.split("vtm-pin ", 1)[1].split()
+    out = tmp_path / "results"
+    arguments[arguments.index("--out") + 1] = str(out)
+    arguments[1] = str(ROOT / arguments[1])
+    assert main([*arguments, "--quiet"]) == 0
+    for produced, shown in [
+        ("poses.png", "pendulum3r_poses.png"),
+        ("momenta.png", "pendulum3r_momenta.png"),
+    ]:
+        assert f"](docs/{shown})" in README
+        difference = compare_images(str(ROOT / "docs" / shown), str(out / produced), PICTURE_RMS)
+        assert difference is None, (
+            f"{difference}\nIf the change is intended, copy results/pendulum3r/{produced} to "
+            f"docs/{shown} after running the README's first command."
+        )
