@@ -70,8 +70,11 @@ def compute_skeleton(robot: Robot, q: np.ndarray, tool_frame: str | None = None)
         if int(model.frames[tool_id].parentJoint) == i:
             end = tool
         else:
-            ends = [data.oMf[f].translation for f, frame in enumerate(model.frames)]
-            carried = [e for f, e in enumerate(ends) if int(model.frames[f].parentJoint) == i]
+            carried = [
+                data.oMf[f].translation
+                for f, frame in enumerate(model.frames)
+                if int(frame.parentJoint) == i
+            ]
             end = max(carried, key=lambda p: float(np.linalg.norm(p - origin[i])))
         if np.linalg.norm(end - origin[i]) > 1e-6:
             segments.append((origin[i], end.copy()))
@@ -193,9 +196,7 @@ def plot_poses(
     """
     first = next(iter(results.values()))
     if view == "auto":
-        view = _auto_view(
-            robot, [compute_tool_path(robot, r.q, tool_frame) for r in results.values()]
-        )
+        view = _auto_view(robot, [])
     ax = _new_axes(view)
     fig = ax.get_figure()
     assert isinstance(fig, Figure)
@@ -230,8 +231,7 @@ def plot_snapshots(
     Poses get rising opacity in time order; each tool position is labelled with its time.
     Planar robots are drawn in their plane, others in 3D.
     """
-    paths = [compute_tool_path(robot, r.q, tool_frame) for r in results.values()]
-    view = _auto_view(robot, paths)
+    view = _auto_view(robot, [])
     fig = Figure(figsize=(5.5 * len(results), 5.5), layout="constrained")
     first: Axes | None = None
     for k, (name, result) in enumerate(results.items()):
@@ -255,7 +255,8 @@ def _auto_view(robot: Robot, points: list[np.ndarray]) -> str:
     """The robot's plane if it and ``points`` [m] stay in one, else ``"3d"``.
 
     Three random configurations join the given points, so that a spatial robot whose drawn
-    poses happen to lie in a plane is still drawn in 3D.
+    poses happen to lie in a plane is still drawn in 3D; a robot that stays in a plane over
+    them keeps its tool paths in it too, so paths need not be passed.
     """
     rng = np.random.default_rng(0)
     for _ in range(3):
