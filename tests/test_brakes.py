@@ -180,3 +180,85 @@ def test_category_one_ramp_stops_within_torque_limits():
     energy = compute_energy_momentum(r, result).total
     balance = energy[0] - energy[-1] - (result.brake_work[-1] - result.drive_work[-1])
     assert abs(balance) < 1e-6  # [J] of ~100 J moved by the drives
+
+
+#: At q = (0, 1.2, 0) rad the pendulum's gravity load needs -611.24 N m at joint 1 to hold
+#: it at rest with joints 2 and 3 free (the lock's multiplier, measured).
+Q_LOADED = np.array([0.0, 1.2, 0.0])  # [rad]
+
+
+def engage_at_rest(v1: float, static: float, **kwargs):
+    """Joint 1 braked from t = 0 on, starting at rate ``v1``; joints 2 and 3 free at rest."""
+    brake = Brake("joint1", sliding_torque=0.75 * static, static_torque=static, **kwargs)
+    v0 = np.array([v1, 0.0, 0.0])
+    return simulate(robot("planar_3r"), Q_LOADED, v0, 0.3, [], RK4(1e-4), "kkt", [brake], Stop())
+
+
+@pytest.mark.parametrize("v1", [0.0, 1e-15, -1e-15, 2e-20, -9e-19])
+def test_engaging_at_rest_sticks_when_the_brake_can_hold(v1):
+    """Rates that are zero to round-off go through the stick/slip decision (no sliding)."""
+    result = engage_at_rest(v1, static=1e5)  # [N m], far above any load of the swing
+    first = result.brake_events[1]
+    assert (first.kind, first.t) == ("stick", 0.0)
+    assert first.holding_torque == pytest.approx(-611.24, abs=0.01)  # [N m]
+    after = slice(1, None)  # sample 0 is the initial state, before the brake engages
+    assert np.all(result.v[after, 0] == 0.0) and np.all(result.q[:, 0] == 0.0)
+    assert result.brake_work[-1] == 0.0
+
+
+@pytest.mark.parametrize("v1", [0.0, 1e-15, -1e-15, 2e-20])
+def test_engaging_at_rest_starts_sliding_with_the_load_when_it_cannot_hold(v1):
+    """Too weak to hold: the joint starts sliding in the direction of the load, never the
+    other way, and the friction opposes the motion it starts (work >= 0, never decreasing)."""
+    result = engage_at_rest(v1, static=100.0)  # [N m] < 611 N m needed
+    start = result.brake_events[1]
+    assert start.kind == "start" and abs(start.holding_torque) > 100.0
+    direction = -np.sign(start.holding_torque)  # the load drives against the holding torque
+    moving = np.abs(result.v[:, 0]) > 1e-9  # [rad/s] REST_RATE: not the initial round-off
+    assert np.all(np.sign(result.v[moving, 0])[:50] == direction)
+    assert result.brake_work[-1] > 0.0
+    # Work is integrated with the state: non-decreasing up to RK4 round-off (1e-12 J).
+    assert np.min(np.diff(result.brake_work)) >= -1e-12
+
+
+def test_a_lock_that_reverses_a_sliding_joint_reverses_its_friction():
+    """Locking joint 2 at 0.01 s flips joint 3 from -1.97 to +1.11 rad/s: its brake must now
+    push the other way, so that it keeps removing energy."""
+    r = robot("planar_3r")
+    brake = Brake("joint3", sliding_torque=1.0)
+    result = simulate(
+        r,
+        np.zeros(3),
+        np.array([0.0, 3.0, -2.0]),
+        0.3,
+        [LockEvent(0.01, ("joint2",))],
+        RK4(1e-4),
+        "kkt",
+        [brake],
+        Stop(),
+    )
+    event = result.events[0]
+    assert event.v_minus[2] < -1.0 and event.v_plus[2] > 1.0
+    reverse = result.brake_events[1]
+    assert (reverse.kind, reverse.t) == ("reverse", 0.01)
+    after = (result.t > 0.01) & (np.abs(result.v[:, 2]) > 0.0)
+    assert np.all(result.modes[after, 2] == BrakeMode.FORWARD)
+    assert np.min(np.diff(result.brake_work)) >= -1e-12  # [J] RK4 round-off
+
+
+def test_category_one_resting_joints_stay_at_rest_when_the_brakes_engage():
+    """Section 1 of the trustworthy-stops issue on the pendulum: joint 1 ramps down, joints 2
+    and 3 are at rest (2e-20 rad/s after the ramp) when the brakes engage; they must stick."""
+    r = robot("planar_3r")
+    limit = np.array([3000.0, 2000.0, 1000.0])  # [N m]
+    stop = Stop(0.0, category=1, ramp_time=0.3, torque_limit=limit)
+    # Joint 1 needs 1364 N m to hold after the others stick: every brake can hold.
+    brakes = [Brake(j, delay=0.05, sliding_torque=2000.0, static_torque=2500.0) for j in r.joints]
+    result = simulate(
+        r, np.array([0.0, 0.3, 0.1]), np.array([1.0, 0.0, 0.0]), 0.6, [], RK4(1e-4), "kkt",
+        brakes, stop,
+    )  # fmt: skip
+    after = result.t > 0.35  # the sample at 0.35 s itself is the state before engagement
+    assert np.all(result.v[after][:, 1:] == 0.0)
+    assert result.brake_work[-1] >= 0.0 and np.min(np.diff(result.brake_work)) >= -1e-12
+    assert np.all(result.v[-1] == 0.0)

@@ -1,12 +1,15 @@
 """Joint brakes: the Modelica ``Rotational.Components.Brake`` state machine, per joint.
 
 A brake is ``free`` until it engages (stop signal + delay). It then ``slides`` (``forward`` for
-v > 0, ``backward`` for v < 0) with the kinetic torque -tau_slide sign(v). When the sliding
-joint's velocity reaches zero it becomes ``stuck`` (a joint lock) if the torque needed to hold
-it is within the static torque, else it slides the other way. A stuck joint whose holding torque
-exceeds the static torque ``slips`` back to sliding. The normal force, and with it both torques,
-may rise linearly over ``ramp`` seconds after engagement. A brake with infinite torque is ideal:
-it locks its joint at engagement with the paper's momentum-consistent jump.
+v > 0, ``backward`` for v < 0) with the kinetic torque -tau_slide sign(v), which only ever
+opposes the motion. A braked joint at rest, whether it engaged at rest, slid to rest or is
+stuck, goes through one decision (Modelica's start-forward / start-backward conditions, see
+:func:`mode_at_rest`): it is ``stuck`` (a joint lock) while the torque needed to hold it is
+within the static torque, else it starts sliding in the direction the load drives it. A stuck
+joint whose holding torque exceeds the static torque ``slips`` back to sliding. The normal
+force, and with it both torques, may rise linearly over ``ramp`` seconds after engagement. A
+brake with infinite torque is ideal: it locks its joint at engagement with the paper's
+momentum-consistent jump.
 """
 
 from __future__ import annotations
@@ -16,6 +19,11 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from .exceptions import BrakeError
+
+#: Rate below which a braked joint counts as at rest [rad/s, m/s for prismatic joints]: well
+#: above the integrator's round-off and event-location residuals (<= 1e-12 rad/s measured),
+#: far below any rate that moves a joint measurably (1e-9 rad in a second).
+REST_RATE = 1e-9
 
 
 class BrakeMode(IntEnum):
@@ -97,3 +105,33 @@ class Brake:
         """Joint-side static (holding) torque limit [N m] ``elapsed`` s after engagement."""
         limit = self.sliding_torque if self.static_torque is None else self.static_torque
         return self.gear_ratio * limit * self.factor(elapsed)
+
+
+def mode_of_motion(v: float) -> BrakeMode | None:
+    """The sliding mode of a braked joint moving at rate ``v``; None if it is at rest.
+
+    Args:
+        v: The joint's rate [rad/s]; |v| <= :data:`REST_RATE` counts as rest.
+    """
+    if v > REST_RATE:
+        return BrakeMode.FORWARD
+    if v < -REST_RATE:
+        return BrakeMode.BACKWARD
+    return None
+
+
+def mode_at_rest(hold: float, limit: float) -> BrakeMode:
+    """The stick/slip decision for a braked joint at rest (Modelica's start conditions).
+
+    Args:
+        hold: Torque the brake must exert to keep the joint at rest [N m] (the lock's
+            multiplier, positive along the joint axis).
+        limit: Static torque limit at this instant, joint side [N m], >= 0.
+
+    Returns:
+        ``STUCK`` if |hold| <= limit; else ``BACKWARD`` if the brake would have to push
+        forward (the load drives the joint backward), ``FORWARD`` otherwise.
+    """
+    if abs(hold) <= limit:
+        return BrakeMode.STUCK
+    return BrakeMode.BACKWARD if hold > 0.0 else BrakeMode.FORWARD

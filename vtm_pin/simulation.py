@@ -16,12 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .brakes import Brake, BrakeMode
+from .brakes import Brake, BrakeMode, mode_at_rest, mode_of_motion
 from .constraints import check_independent, lock_jacobian
 from .dynamics import compute_energy, compute_M
 from .exceptions import SimulationError
 from .holonomic import FrameConstraint, compute_kinematics, project_initial_state, stack
-from .integrators import Integrator, Rhs
+from .integrators import Integrator, Rhs, Segment
 from .phase import DriveLaw, Phase
 from .robot import Robot
 from .stop import Stop
@@ -273,7 +273,12 @@ class _Hybrid:
         self.v[self.locked] = 0.0
 
     def engage(self, t: float, i: int, ideal_locks: list[int]) -> None:
-        """Brake ``i`` engages: its drive goes off, and it locks (ideal) or starts sliding."""
+        """Brake ``i`` engages: its drive goes off, and it locks (ideal) or starts braking.
+
+        A joint moving faster than :data:`vtm_pin.brakes.REST_RATE` starts sliding against
+        its motion; a joint at rest is left to :meth:`settle`, which decides stick or slip
+        once every event of this instant has been applied.
+        """
         brake = self.brakes[i]
         name = self.robot.joints[i]
         self.drive_on[i] = False
@@ -286,16 +291,81 @@ class _Hybrid:
             self.brake_events.append(BrakeEvent(t, name, "lock", float(self.v[i])))
             return
         self.brake_events.append(BrakeEvent(t, name, "engage", float(self.v[i])))
-        if self.v[i] > 0.0:
-            self.modes[i] = BrakeMode.FORWARD
-        elif self.v[i] < 0.0:
-            self.modes[i] = BrakeMode.BACKWARD
-        else:
-            self.rest(t, i, float(self.v[i]))
+        self.modes[i] = mode_of_motion(float(self.v[i])) or BrakeMode.FREE
 
-    def rest(self, t: float, i: int, v_event: float) -> None:
-        """Joint ``i``'s rate reached zero while braked: stick if the brake can hold it."""
+    def settle(self, t: float, due: Sequence[int] = ()) -> None:
+        """Bring every engaged brake's mode in line with the state at ``t``; build the phase.
+
+        One rule for every braked joint (Modelica's ``Brake``): a joint at rest (engaged at
+        rest, slid to rest, or past zero by round-off) sticks if its holding torque is within
+        the static torque, else starts sliding in the direction of the load; a sliding joint
+        whose rate has the other sign (after a jump) slides the other way; a stuck joint
+        whose holding torque exceeds the static torque slips. Decisions are taken one joint
+        at a time, and re-examined after every lock or slip, since each changes the loads.
+
+        Args:
+            t: Time [s].
+            due: Joints whose state event fired now: decided even at the exact limit.
+
+        Raises:
+            SimulationError: The decisions do not settle (stick and slip alternate).
+        """
+        decided: set[int] = set()
+        pending = list(due)
+        for _ in range(_MAX_DECISIONS * (self.robot.nv + 1)):
+            phase = self.new_phase()
+            i, action = self._next_decision(t, phase, pending, decided)
+            if action is None:
+                self.phase = phase
+                return
+            pending = [j for j in pending if j != i]
+            if action == "flip":
+                self.modes[i] = mode_of_motion(float(self.v[i])) or self.modes[i]
+                self.brake_events.append(
+                    BrakeEvent(t, self.robot.joints[i], "reverse", float(self.v[i]))
+                )
+                continue
+            changed = self.rest(t, i) if action == "rest" else self.slip(t, i, phase)
+            decided = {i} if changed else decided | {i}
+        raise SimulationError(
+            f"Brake decisions at t = {t} s do not settle: joints stick and slip in turn"
+        )
+
+    def _next_decision(
+        self, t: float, phase: Phase, pending: Sequence[int], decided: set[int]
+    ) -> tuple[int, str | None]:
+        """The next joint whose brake mode disagrees with the state, and what to do."""
+        if pending:
+            return pending[0], "slip" if pending[0] in self.locked else "rest"
+        for i in self.engaged:
+            mode = self.modes[i]
+            if i in self.locked or i in decided or mode is BrakeMode.LOCKED:
+                continue
+            moving = mode_of_motion(float(self.v[i]))
+            if moving is None and (mode.sliding or mode is BrakeMode.FREE):
+                return i, "rest"
+            if moving is not None and mode is not moving:
+                return i, "flip"
+        stuck = [
+            i
+            for i in self.engaged
+            if self.modes[i] is BrakeMode.STUCK and i not in decided and i in self.locked
+        ]
+        if stuck:
+            hold = phase.holding_torque(t, phase.pack(self.q, self.v, self.extras))
+            for i in stuck:
+                if abs(hold[i]) > self.brakes[i].static(t - self.engaged[i]):
+                    return i, "slip"
+        return -1, None
+
+    def rest(self, t: float, i: int) -> bool:
+        """Joint ``i`` is at rest while braked: stick if the brake can hold it, else slide.
+
+        Returns:
+            Whether the joint stuck (a lock: the topology changed).
+        """
         brake = self.brakes[i]
+        v_event = float(self.v[i])
         self.v[i] = 0.0
         modes = list(self.modes)
         self.modes[i] = BrakeMode.STUCK
@@ -304,24 +374,35 @@ class _Hybrid:
         hold = float(trial.holding_torque(t, y)[i])
         limit = brake.static(t - self.engaged[i])
         name = self.robot.joints[i]
-        if abs(hold) <= limit:
+        mode = mode_at_rest(hold, limit)
+        if mode is BrakeMode.STUCK:
             self.brake_events.append(BrakeEvent(t, name, "stick", v_event, hold, limit))
             self.lock(t, [i], "stick")
-        else:
-            # Slide on in the direction the load drives it (opposite to the needed torque).
-            self.modes = modes
-            self.modes[i] = BrakeMode.BACKWARD if hold > 0.0 else BrakeMode.FORWARD
-            self.brake_events.append(BrakeEvent(t, name, "reverse", v_event, hold, limit))
+            return True
+        kind = "reverse" if modes[i].sliding else "start"
+        self.modes = modes
+        self.modes[i] = mode
+        self.brake_events.append(BrakeEvent(t, name, kind, v_event, hold, limit))
+        return False
 
-    def slip(self, t: float, i: int) -> None:
-        """Stuck joint ``i`` breaks loose: unlock it and slide in the direction of the load."""
-        hold = float(self.phase.holding_torque(t, self.phase.pack(self.q, self.v, self.extras))[i])
+    def slip(self, t: float, i: int, phase: Phase) -> bool:
+        """Stuck joint ``i`` breaks loose: unlock it and slide in the direction of the load.
+
+        Returns:
+            True (the topology changed).
+        """
+        hold = float(phase.holding_torque(t, phase.pack(self.q, self.v, self.extras))[i])
         limit = self.brakes[i].static(t - self.engaged[i])
         self.locked = [j for j in self.locked if j != i]
         self.modes[i] = BrakeMode.BACKWARD if hold > 0.0 else BrakeMode.FORWARD
         self.brake_events.append(
             BrakeEvent(t, self.robot.joints[i], "slip", float(self.v[i]), hold, limit)
         )
+        return True
+
+
+#: Brake decisions allowed per joint at one instant before the state machine gives up.
+_MAX_DECISIONS = 4
 
 
 def simulate(
@@ -402,44 +483,17 @@ def simulate(
         h.q, h.v = project_initial_state(robot, h.q, h.v, h.frames)
         h.phase = h.new_phase()
     queue = _time_events(robot, events, h.brakes, stop, duration)
-
-    ts: list[np.ndarray] = []
-    qs: list[np.ndarray] = []
-    vs: list[np.ndarray] = []
-    frees: list[np.ndarray] = []
-    modes: list[np.ndarray] = []
-    extras: list[np.ndarray] = []
-    holds: list[np.ndarray] = []
-    drifts: list[np.ndarray] = []
+    trace = _Trace(n, h.extras.size)
+    if queue and queue[0][0] <= 0.0:
+        trace.add_state(0.0, h)  # the state before the events at t = 0
     rhs_evals = steps = 0
     t = 0.0
     while True:
         # Events due now (t = 0 or a time event just reached) are applied before integrating.
-        ideal: list[int] = []
-        frames: list[FrameConstraint] = []
-        changed = False
-        while queue and queue[0][0] <= t:
-            _, _, _, kind, payload = heapq.heappop(queue)
-            changed = True
-            if kind == "lock":
-                assert isinstance(payload, LockEvent)
-                ideal.extend(robot.joint_indices(payload.lock))
-                frames.extend(payload.activate)
-            elif kind == "signal":
-                assert stop is not None
-                if stop.category == 0:
-                    h.drive, h.drive_on[:] = DriveLaw.OFF, False
-                else:
-                    h.drive, h.v_signal = DriveLaw.RAMP, h.v.copy()
-            elif kind == "brake_signal":
-                h.drive_on[[i for i in range(n) if i not in h.brakes]] = False
-            elif kind == "engage":
-                assert isinstance(payload, int)
-                h.engage(t, payload, ideal)
-        if ideal or frames:
-            h.lock(t, ideal, "lock", frames)
-        if changed:
-            h.phase = h.new_phase()
+        if _apply_time_events(h, queue, t):
+            h.settle(t)
+            if t >= duration:
+                trace.add_state(t, h)  # the state after the events at t = duration
         if t >= duration:
             break
         t_end = min(queue[0][0], duration) if queue else duration
@@ -455,64 +509,148 @@ def simulate(
         rhs_evals += segment.rhs_evals
         steps += segment.t.size - 1
         _check_energy(h, phase, segment.y, segment.t, integrator)
-        k, size = phase.k, segment.t.size
-        block_q = np.empty((size, n))
-        block_v = np.zeros((size, n))
-        block_q[:, phase.topology.locked] = phase.topology.q_locked
-        block_q[:, phase.topology.free] = segment.y[:, :k]
-        block_v[:, phase.topology.free] = segment.y[:, k : 2 * k]
-        mask = np.zeros(n, dtype=bool)
-        mask[phase.topology.free] = True
-        ts.append(segment.t)
-        qs.append(block_q)
-        vs.append(block_v)
-        frees.append(np.broadcast_to(mask, (size, n)))
-        modes.append(np.broadcast_to(np.array(h.modes, dtype=np.int8), (size, n)))
-        block_hold = np.full((size, n), np.nan)
-        if brakes and phase.topology.locked:
-            locked = list(phase.topology.locked)
-            for r in range(size):
-                block_hold[r, locked] = phase.holding_torque(segment.t[r], segment.y[r])[locked]
-        holds.append(block_hold)
-        drifts.append(phase.constraint_drift(segment.y))
-        block_extras = phase.unpack_extras(segment.y, h.extras)
-        extras.append(block_extras)
+        h.q, h.v, h.extras = trace.add_segment(phase, segment, h, bool(brakes))
         t = float(segment.t[-1])
         if progress is not None:
             progress(t)
-        h.q, h.v, h.extras = block_q[-1].copy(), block_v[-1].copy(), block_extras[-1].copy()
         if segment.event is not None:
-            fired = phase.events[segment.event]
-            if fired.kind == "zero_velocity":
-                h.rest(t, fired.joint, float(h.v[fired.joint]))
-            else:
-                h.slip(t, fired.joint)
-            h.phase = h.new_phase()
-        elif t >= duration and not queue:
-            break
-    wall_time = time.perf_counter() - start
-    work = np.vstack(extras)
-    return SimulationResult(
-        joints=robot.joints,
-        t=np.concatenate(ts),
-        q=np.vstack(qs),
-        v=np.vstack(vs),
-        free=np.vstack(frees),
-        modes=np.vstack(modes),
-        brake_work=work[:, 0],
-        drive_work=work[:, 1],
-        brake_impulse=work[-1, 2:].copy(),
-        holding=np.vstack(holds),
-        drift=np.vstack(drifts),
-        events=tuple(h.events),
-        brake_events=tuple(h.brake_events),
-        transition=transition,
+            h.settle(t, due=[phase.events[segment.event].joint])
+            if t >= duration:
+                trace.add_state(t, h)
+    return trace.result(
+        robot,
+        h,
         integrator=integrator.name,
         rhs_evals=rhs_evals,
         steps=steps,
-        wall_time=wall_time,
-        stop=stop,
+        wall_time=time.perf_counter() - start,
     )
+
+
+def _apply_time_events(
+    h: _Hybrid, queue: list[tuple[float, int, int, str, object]], t: float
+) -> bool:
+    """Apply the time events due at ``t`` (in heap order); whether there were any."""
+    ideal: list[int] = []
+    frames: list[FrameConstraint] = []
+    changed = False
+    while queue and queue[0][0] <= t:
+        _, _, _, kind, payload = heapq.heappop(queue)
+        changed = True
+        if kind == "lock":
+            assert isinstance(payload, LockEvent)
+            ideal.extend(h.robot.joint_indices(payload.lock))
+            frames.extend(payload.activate)
+        elif kind == "signal":
+            assert h.stop is not None
+            if h.stop.category == 0:
+                h.drive, h.drive_on[:] = DriveLaw.OFF, False
+            else:
+                h.drive, h.v_signal = DriveLaw.RAMP, h.v.copy()
+        elif kind == "brake_signal":
+            h.drive_on[[i for i in range(h.robot.nv) if i not in h.brakes]] = False
+        elif kind == "engage":
+            assert isinstance(payload, int)
+            h.engage(t, payload, ideal)
+    if ideal or frames:
+        h.lock(t, ideal, "lock", frames)
+    return changed
+
+
+class _Trace:
+    """The samples of a run, collected block by block (a segment, or one state)."""
+
+    def __init__(self, n: int, n_extras: int) -> None:
+        self.n = n
+        self.n_extras = n_extras
+        self.blocks: dict[str, list[np.ndarray]] = {
+            key: [] for key in ("t", "q", "v", "free", "modes", "extras", "hold", "drift")
+        }
+
+    def _append(self, **arrays: np.ndarray) -> None:
+        for key, value in arrays.items():
+            self.blocks[key].append(value)
+
+    def add_state(self, t: float, h: _Hybrid) -> None:
+        """One sample of the hybrid state as it is now (before or after events at ``t``)."""
+        free = np.ones(self.n, dtype=bool)
+        free[h.locked] = False
+        self._append(
+            t=np.array([t]),
+            q=h.q[None].copy(),
+            v=h.v[None].copy(),
+            free=free[None],
+            modes=np.array(h.modes, dtype=np.int8)[None],
+            extras=h.extras[None].copy(),
+            hold=np.full((1, self.n), np.nan),
+            drift=np.full((1, 2), np.nan),
+        )
+
+    def add_segment(
+        self, phase: Phase, segment: Segment, h: _Hybrid, holding: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Record a segment; returns the full (q, v, extras) at its end."""
+        n, k, size = self.n, phase.k, segment.t.size
+        topology = phase.topology
+        q = np.empty((size, n))
+        v = np.zeros((size, n))
+        q[:, topology.locked] = topology.q_locked
+        q[:, topology.free] = segment.y[:, :k]
+        v[:, topology.free] = segment.y[:, k : 2 * k]
+        mask = np.zeros(n, dtype=bool)
+        mask[topology.free] = True
+        hold = np.full((size, n), np.nan)
+        if holding and topology.locked:
+            locked = list(topology.locked)
+            for r in range(size):
+                hold[r, locked] = phase.holding_torque(segment.t[r], segment.y[r])[locked]
+        extras = phase.unpack_extras(segment.y, h.extras)
+        self._append(
+            t=segment.t,
+            q=q,
+            v=v,
+            free=np.broadcast_to(mask, (size, n)),
+            modes=np.broadcast_to(np.array(h.modes, dtype=np.int8), (size, n)),
+            extras=extras,
+            hold=hold,
+            drift=phase.constraint_drift(segment.y),
+        )
+        return q[-1].copy(), v[-1].copy(), extras[-1].copy()
+
+    def result(
+        self,
+        robot: Robot,
+        h: _Hybrid,
+        *,
+        integrator: str,
+        rhs_evals: int,
+        steps: int,
+        wall_time: float,
+    ) -> SimulationResult:
+        """The collected samples and the events as a :class:`SimulationResult`."""
+        rows = {key: np.concatenate(blocks) for key, blocks in self.blocks.items()}
+        work = rows["extras"]
+        return SimulationResult(
+            joints=robot.joints,
+            t=rows["t"],
+            q=rows["q"],
+            v=rows["v"],
+            free=rows["free"],
+            modes=rows["modes"],
+            brake_work=work[:, 0],
+            drive_work=work[:, 1],
+            brake_impulse=work[-1, 2:].copy(),
+            holding=rows["hold"],
+            drift=rows["drift"],
+            events=tuple(h.events),
+            brake_events=tuple(h.brake_events),
+            transition=h.rule_name,
+            integrator=integrator,
+            rhs_evals=rhs_evals,
+            steps=steps,
+            wall_time=wall_time,
+            stop=h.stop,
+        )
 
 
 #: Largest energy-balance error of one interval, as a fraction of the energy it moved. A
