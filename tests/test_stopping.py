@@ -73,3 +73,63 @@ def test_braked_stop_report_margins_and_surges():
     for j in report.joints[3:]:
         assert j.stop_time == 0.08 and np.isinf(j.holding_margin)  # ideal wrist brakes
     assert np.all(result.v[-1] == 0.0)
+
+
+def test_stop_time_is_when_the_speed_stays_below_the_rest_speed():
+    """Category 1: the ramp ends the motion (0.3 s) before the brakes latch (0.38 s)."""
+    scenario = load_scenario(SCENARIOS / "rx160l_estop_cat1.yaml")
+    result = run_scenario(scenario)
+    report = compute_stopping_report(scenario.robot, result, scenario.brakes, scenario.tool_frame)
+    assert report.rest_speed == 1e-3 and not report.moving
+    for j, joint in enumerate(report.joints):
+        assert joint.stopped and joint.latch_time == pytest.approx(0.38, abs=1e-3)
+        assert joint.stop_time < 0.3 < joint.latch_time
+        # After the stopping time the speed stays below the rest speed [rad/s].
+        after = result.t >= report.signal_time + joint.stop_time + 1e-9
+        assert np.all(np.abs(result.v[after, j]) <= report.rest_speed)
+    assert report.all_stopped_time == max(j.stop_time for j in report.joints)
+
+
+def test_rest_speed_is_a_scenario_key():
+    import yaml
+
+    from vtm_pin.scenario import build_scenario
+
+    raw = yaml.safe_load((SCENARIOS / "rx160l_estop_cat0.yaml").read_text())
+    times = []
+    for rest_speed in (1e-4, 1e-3, 1e-1):
+        raw["stop"]["rest_speed"] = rest_speed
+        scenario = build_scenario(raw, base_dir=SCENARIOS)
+        report = compute_stopping_report(scenario.robot, run_scenario(scenario), scenario.brakes)
+        assert report.rest_speed == rest_speed
+        times.append([j.stop_time for j in report.joints[:3]])
+    # A higher rest speed is reached earlier; the sliding brakes decelerate at a finite
+    # rate, so the three thresholds give three different times.
+    assert np.all(np.diff(times, axis=0) < 0.0)
+
+
+def test_a_joint_still_moving_is_said_in_words(tmp_path):
+    """Stopped before the brakes act: no NaN in summary.json, no 'nan' in the text."""
+    import json
+
+    from vtm_pin.cli import main
+
+    text = (SCENARIOS / "rx160l_estop_cat0.yaml").read_text()
+    short = tmp_path / "short.yaml"
+    short.write_text(text.replace("duration: 1.0", "duration: 0.1"))
+    out = tmp_path / "out"
+    assert main(["run", str(short), "--out", str(out), "--quiet"]) == 0
+    stopping = json.loads((out / "summary.json").read_text())["stopping"]
+    assert stopping["all_stopped"] is False and stopping["all_stopped_time"] is None
+    assert stopping["still_moving"] == ["joint_1", "joint_2", "joint_3"]
+    first = stopping["joints"][0]
+    assert first["stopped"] is False and first["stop_time"] is None
+    assert "rest_speed" in stopping["definition"]
+
+    from vtm_pin.report import format_stopping
+
+    scenario = load_scenario(short)
+    report = compute_stopping_report(scenario.robot, run_scenario(scenario), scenario.brakes)
+    printed = format_stopping("kkt", report)
+    assert "nan" not in printed.lower()
+    assert "joint_1, joint_2, joint_3 still moving at the end of the run (t = 0.1 s)" in printed

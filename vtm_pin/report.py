@@ -117,11 +117,24 @@ def _brake_event(event: BrakeEvent) -> dict[str, Any]:
     }
 
 
+#: How the stopping report's times are defined (written into summary.json and the README).
+STOP_TIME_DEFINITION = (
+    "stop_time: time from the stop signal until the joint's speed falls below rest_speed "
+    "for good (ISO 13855's T); null if the joint still moves at the end of the run. "
+    "latch_time: time from the signal until the joint's brake sticks or locks for good; in a "
+    "category-1 stop the drives end the motion before the brakes latch."
+)
+
+
 def _stopping(report: StoppingReport, scenario: Scenario) -> dict[str, Any]:
     ideal = {b.joint for b in scenario.brakes if b.ideal}
     return {
+        "definition": STOP_TIME_DEFINITION,
+        "rest_speed": report.rest_speed,
         "signal_time": report.signal_time,
+        "all_stopped": not report.moving,
         "all_stopped_time": _num(report.all_stopped_time),
+        "still_moving": list(report.moving),
         "tool_frame": report.tool_frame,
         "tcp_distance": report.tcp_distance,
         "tcp_path_length": report.tcp_path_length,
@@ -130,7 +143,9 @@ def _stopping(report: StoppingReport, scenario: Scenario) -> dict[str, Any]:
         "joints": [
             {
                 "joint": j.joint,
+                "stopped": j.stopped,
                 "stop_time": _num(j.stop_time),
+                "latch_time": _num(j.latch_time),
                 "stop_angle": j.stop_angle,
                 "stop_angle_motor": j.stop_angle_motor,
                 "peak_surge": j.peak_surge,
@@ -151,26 +166,36 @@ def _num(x: float) -> float | None:
 
 
 def format_stopping(name: str, report: StoppingReport) -> str:
-    """Per-joint stopping table of one run."""
+    """Per-joint stopping table of one run, with the definition of its times."""
     w = max(12, *(len(j.joint) for j in report.joints))
     lines = [
-        f"stopping report ({name}), signal at t = {report.signal_time:g} s:",
-        f"{'joint':<{w}} {'stop [s]':>9} {'angle [rad]':>12} {'motor [rad]':>12} "
-        f"{'surge [rad/s]':>14} {'brake imp. [N m s]':>19} {'peak hold [N m]':>16} "
-        f"{'margin [N m]':>13}",
+        f"stopping report ({name}), signal at t = {report.signal_time:g} s; a joint has "
+        f"stopped once its speed stays below {report.rest_speed:g} rad/s (stop.rest_speed); "
+        "latch = its brake stuck or locked:",
+        f"{'joint':<{w}} {'stop [s]':>9} {'latch [s]':>9} {'angle [rad]':>12} "
+        f"{'motor [rad]':>12} {'surge [rad/s]':>14} {'brake imp. [N m s]':>19} "
+        f"{'peak hold [N m]':>16} {'margin [N m]':>13}",
     ]
     for j in report.joints:
+        stop = _fmt(j.stop_time, "9.4f") if j.stopped else f"{'moving':>9}"
         lines.append(
-            f"{j.joint:<{w}} {_fmt(j.stop_time, '9.4f')} {j.stop_angle:12.4f} "
+            f"{j.joint:<{w}} {stop} {_fmt(j.latch_time, '9.4f')} {j.stop_angle:12.4f} "
             f"{j.stop_angle_motor:12.2f} {j.peak_surge:14.4f} "
             f"{j.friction_impulse + j.lock_impulse:19.3f} {_fmt(j.peak_holding_torque, '16.1f')} "
             f"{_fmt(j.holding_margin, '13.1f')}"
         )
+    if report.moving:
+        status = (
+            f"not every joint stopped: {', '.join(report.moving)} still moving at the end of "
+            f"the run (t = {report.end_time:g} s)"
+        )
+    else:
+        status = f"all joints stopped {report.all_stopped_time:.4f} s after the signal"
     lines.append(
-        f"all joints stopped after {report.all_stopped_time:.4f} s; tool frame "
-        f"'{report.tool_frame}': stopping distance {report.tcp_distance:.4f} m, path "
-        f"{report.tcp_path_length:.4f} m, peak speed {report.tcp_peak_speed:.3f} m/s, "
-        f"largest speed jump at a lock {report.tcp_peak_surge:.4f} m/s"
+        f"{status}; tool frame '{report.tool_frame}': stopping distance "
+        f"{report.tcp_distance:.4f} m, path {report.tcp_path_length:.4f} m, peak speed "
+        f"{report.tcp_peak_speed:.3f} m/s, largest speed jump at a lock "
+        f"{report.tcp_peak_surge:.4f} m/s"
     )
     return "\n".join(lines)
 

@@ -19,7 +19,7 @@ from .holonomic import FrameConstraint
 from .integrators import DOP853, FIXED_STEP, INTEGRATORS, Integrator
 from .robot import Drive, Robot, load_robot
 from .simulation import DEFAULT_BAUMGARTE, LockEvent, SimulationResult, simulate
-from .stop import DEFAULT_GAIN, Stop
+from .stop import DEFAULT_GAIN, DEFAULT_REST_SPEED, Stop
 from .transitions import TRANSITIONS
 
 _NUMBER = {"type": "number"}
@@ -188,6 +188,13 @@ SCHEMA: dict[str, Any] = {
                     "type": "number",
                     "exclusiveMinimum": 0,
                     "description": "Category 1: velocity feedback gain [1/s]. Default: 50.",
+                },
+                "rest_speed": {
+                    "type": "number",
+                    "exclusiveMinimum": 0,
+                    "description": "A joint has stopped once its speed stays below this "
+                    "[rad/s]; the stopping time runs from the signal until then. Default: "
+                    "0.001.",
                 },
             },
         },
@@ -606,6 +613,7 @@ def _stop(robot: Robot, raw: Any, source: str, duration: float) -> Stop | None:
             torque_limit=torque_limit,
             time_limit=raw.get("time_limit"),
             gain=float(raw.get("gain", DEFAULT_GAIN)),
+            rest_speed=float(raw.get("rest_speed", DEFAULT_REST_SPEED)),
         )
     except BrakeError as exc:
         raise ScenarioError(source, "stop", str(exc)) from exc

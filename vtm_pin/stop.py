@@ -19,6 +19,9 @@ from .exceptions import BrakeError
 
 #: Velocity-feedback gain of the category-1 ramp [1/s].
 DEFAULT_GAIN = 50.0
+#: Speed below which a joint counts as stopped in the stopping report [rad/s, m/s for
+#: prismatic joints]: 1e-3 rad/s moves a point 1 m from the axis by 1 mm/s.
+DEFAULT_REST_SPEED = 1.0e-3
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,8 @@ class Stop:
         torque_limit: Category 1: joint-side drive torque limit per joint [N m], shape (n,).
         time_limit: Category 1: latest brake signal after ``t`` [s]; defaults to ``ramp_time``.
         gain: Category 1: velocity-feedback gain [1/s].
+        rest_speed: A joint has stopped once its speed stays below this [rad/s], > 0; the
+            stopping time runs from the signal until then.
 
     Raises:
         BrakeError: A category-1 stop without ramp time or torque limit, or a bad figure.
@@ -43,12 +48,15 @@ class Stop:
     torque_limit: np.ndarray | None = None
     time_limit: float | None = None
     gain: float = DEFAULT_GAIN
+    rest_speed: float = DEFAULT_REST_SPEED
 
     def __post_init__(self) -> None:
         if self.category not in (0, 1):
             raise BrakeError(f"Stop category {self.category} is not 0 or 1")
         if not (self.t >= 0.0) or not math.isfinite(self.t):
             raise BrakeError(f"Stop time {self.t} s is not a finite number >= 0")
+        if not (self.rest_speed > 0.0) or not math.isfinite(self.rest_speed):
+            raise BrakeError(f"Rest speed {self.rest_speed} rad/s is not a finite number > 0")
         if self.category == 1:
             if self.ramp_time is None or not (self.ramp_time > 0.0):
                 raise BrakeError(f"Category-1 stop needs a ramp time > 0 s, got {self.ramp_time}")

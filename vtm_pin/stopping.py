@@ -1,4 +1,11 @@
-"""The stopping report: where and when each joint stops, and how hard brakes and gears are hit."""
+"""The stopping report: where and when each joint stops, and how hard brakes and gears are hit.
+
+A joint's **stopping time** is the time from the stop signal until its speed falls below the
+rest speed (``stop.rest_speed``, default 1e-3 rad/s) for good, as a safety engineer measures
+it (ISO 13855's T). It is not the instant the brake latches (sticks, or locks ideally),
+which is reported beside it as the **latch time**: in a category-1 stop the drives' ramp ends
+the motion before the brakes engage.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +17,7 @@ import pinocchio as pin
 from .brakes import Brake, BrakeMode
 from .robot import Robot
 from .simulation import SimulationResult
+from .stop import DEFAULT_REST_SPEED
 
 
 @dataclass(frozen=True)
@@ -18,8 +26,10 @@ class JointStop:
 
     Attributes:
         joint: Joint name.
-        stop_time: Time from the stop signal until the joint locked for good [s]; NaN if it
-            was still moving at the end.
+        stop_time: Time from the stop signal until the joint's speed falls below the rest
+            speed for good [s]; NaN if it was still moving at the end (see ``stopped``).
+        latch_time: Time from the stop signal until the joint locked for good (its brake
+            stuck or locked) [s]; NaN if it was not locked at the end.
         stop_angle: Joint travel from the signal to the end, q(end) - q(signal) [rad].
         stop_angle_motor: The same on the motor side, x gear ratio [rad].
         peak_surge: Largest speed-up |v+| - |v-| this joint received from a lock of other
@@ -33,8 +43,14 @@ class JointStop:
             +inf for ideal locks, NaN if the joint never stuck.
     """
 
+    @property
+    def stopped(self) -> bool:
+        """Whether the joint was at rest (below the rest speed) at the end of the run."""
+        return bool(np.isfinite(self.stop_time))
+
     joint: str
     stop_time: float
+    latch_time: float
     stop_angle: float
     stop_angle_motor: float
     peak_surge: float
@@ -51,7 +67,10 @@ class StoppingReport:
     Attributes:
         signal_time: When the stop button was pressed [s].
         joints: One :class:`JointStop` per joint, in model order.
-        all_stopped_time: Time from the signal until every joint is locked [s] (NaN if not).
+        rest_speed: Speed below which a joint counts as stopped [rad/s].
+        end_time: End of the run [s].
+        all_stopped_time: Time from the signal until every joint is at rest for good [s]
+            (NaN if some joint was still moving at the end: see ``moving``).
         tool_frame: Frame followed.
         tcp_path: Tool-frame positions from the signal on [m], shape (k, 3).
         tcp_distance: Straight-line distance from the signal position to the final one [m].
@@ -62,6 +81,8 @@ class StoppingReport:
 
     signal_time: float
     joints: tuple[JointStop, ...]
+    rest_speed: float
+    end_time: float
     all_stopped_time: float
     tool_frame: str
     tcp_path: np.ndarray
@@ -69,6 +90,11 @@ class StoppingReport:
     tcp_path_length: float
     tcp_peak_speed: float
     tcp_peak_surge: float
+
+    @property
+    def moving(self) -> tuple[str, ...]:
+        """Joints still moving (above the rest speed) at the end of the run."""
+        return tuple(j.joint for j in self.joints if not j.stopped)
 
 
 def compute_stopping_report(
@@ -93,14 +119,14 @@ def compute_stopping_report(
         np.isin(result.modes[-1], (BrakeMode.STUCK, BrakeMode.LOCKED)) | ~result.free[-1]
     )
 
-    stop_time = np.full(n, np.nan)
+    latch_time = np.full(n, np.nan)
     surge = np.zeros(n)
     lock_impulse = np.zeros(n)
     for event in result.events:
         for name in event.lock:
             j = robot.joint_index(name)
             if locked_for_good[j]:
-                stop_time[j] = event.t - t_signal
+                latch_time[j] = event.t - t_signal
         for label, impulse in zip(event.rows, -event.transition.Lambda, strict=True):
             if label.startswith("lock "):
                 lock_impulse[robot.joint_index(label[5:])] += impulse
@@ -134,10 +160,15 @@ def compute_stopping_report(
         jac = _tool_jacobian(robot, event.q, tool_frame or robot.tool_frame)
         jump = np.linalg.norm(jac @ event.v_plus) - np.linalg.norm(jac @ event.v_minus)
         tcp_surge = max(tcp_surge, float(jump))
+    rest_speed = result.stop.rest_speed if result.stop is not None else DEFAULT_REST_SPEED
+    stop_time = [
+        _rest_time(result.t[i0:], result.v[i0:, j], rest_speed) - t_signal for j in range(n)
+    ]
     joints = tuple(
         JointStop(
             joint=name,
             stop_time=float(stop_time[j]),
+            latch_time=float(latch_time[j]),
             stop_angle=float(result.q[-1, j] - result.q[i0, j]),
             stop_angle_motor=float((result.q[-1, j] - result.q[i0, j]) * robot.gear_ratio[j]),
             peak_surge=float(surge[j]),
@@ -153,6 +184,8 @@ def compute_stopping_report(
     return StoppingReport(
         signal_time=t_signal,
         joints=joints,
+        rest_speed=rest_speed,
+        end_time=float(result.t[-1]),
         all_stopped_time=all_stopped,
         tool_frame=tool_frame or robot.tool_frame,
         tcp_path=tcp,
@@ -161,6 +194,26 @@ def compute_stopping_report(
         tcp_peak_speed=float(np.max(speed[i0:])),
         tcp_peak_surge=tcp_surge,
     )
+
+
+def _rest_time(t: np.ndarray, v: np.ndarray, rest_speed: float) -> float:
+    """When |v| falls below ``rest_speed`` for good [s]; NaN if it is above at the end.
+
+    Between the last sample above and the next one, |v| is interpolated linearly; at an
+    event (two samples at one time) the speed drops at the event time.
+    """
+    speed = np.abs(v)
+    above = np.flatnonzero(speed > rest_speed)
+    if above.size == 0:
+        return float(t[0])
+    a = int(above[-1])
+    if a == speed.size - 1:
+        return float("nan")
+    span = t[a + 1] - t[a]
+    if span <= 0.0:
+        return float(t[a])
+    fraction = (speed[a] - rest_speed) / (speed[a] - speed[a + 1])
+    return float(t[a] + fraction * span)
 
 
 def _tool_path(robot: Robot, result: SimulationResult, frame: str) -> tuple[np.ndarray, np.ndarray]:
