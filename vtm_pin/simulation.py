@@ -451,23 +451,8 @@ def simulate(
         SimulationError: Bad arguments, or the state became non-finite.
         JointNotFound: An event or brake names an unknown joint.
     """
-    if transition not in TRANSITIONS:
-        raise SimulationError(
-            f"Unknown transition '{transition}'; allowed: {', '.join(sorted(TRANSITIONS))}"
-        )
-    if not duration > 0.0:
-        raise SimulationError(f"Duration {duration} is not a positive number of seconds")
+    _check_arguments(robot, duration, events, transition, brakes, stop, constraints)
     n = robot.nv
-    for lock_event in events:
-        if not 0.0 <= lock_event.t <= duration:
-            raise SimulationError(f"Event at t = {lock_event.t} s is outside [0, {duration}] s")
-    if brakes and stop is None:
-        raise SimulationError("Brakes act only after a stop signal: give a stop")
-    activated = list(constraints) + [c for e in events for c in e.activate]
-    if brakes and activated:
-        raise SimulationError("Brakes together with loop closures or dockings are not supported")
-    for constraint in activated:
-        constraint.check(robot.model)
     start = time.perf_counter()
     h = _Hybrid(
         robot,
@@ -525,6 +510,34 @@ def simulate(
         steps=steps,
         wall_time=time.perf_counter() - start,
     )
+
+
+def _check_arguments(
+    robot: Robot,
+    duration: float,
+    events: Sequence[LockEvent],
+    transition: str,
+    brakes: Sequence[Brake],
+    stop: Stop | None,
+    constraints: Sequence[FrameConstraint],
+) -> None:
+    """Refuse arguments :func:`simulate` cannot run, with a one-line reason."""
+    if transition not in TRANSITIONS:
+        raise SimulationError(
+            f"Unknown transition '{transition}'; allowed: {', '.join(sorted(TRANSITIONS))}"
+        )
+    if not duration > 0.0:
+        raise SimulationError(f"Duration {duration} is not a positive number of seconds")
+    for lock_event in events:
+        if not 0.0 <= lock_event.t <= duration:
+            raise SimulationError(f"Event at t = {lock_event.t} s is outside [0, {duration}] s")
+    if brakes and stop is None:
+        raise SimulationError("Brakes act only after a stop signal: give a stop")
+    activated = list(constraints) + [c for e in events for c in e.activate]
+    if brakes and activated:
+        raise SimulationError("Brakes together with loop closures or dockings are not supported")
+    for constraint in activated:
+        constraint.check(robot.model)
 
 
 def _apply_time_events(
