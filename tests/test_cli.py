@@ -1,5 +1,8 @@
 import json
+import signal
+import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -131,8 +134,8 @@ def test_redundant_constraint_is_one_line_and_no_output(tmp_path, capsys):
     assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
     assert err == (
-        "vtm-pin: error: Constraints are redundant: 'loop0.y' depends on the others (rank 2 "
-        "of 3 rows); drop them (a planar loop keeps axes [x, z])\n"
+        f"vtm-pin: error: {path}: Constraints are redundant: 'loop0.y' depends on the others "
+        "(rank 2 of 3 rows); drop them (a planar loop keeps axes [x, z])\n"
     )
     assert [p.name for p in tmp_path.iterdir()] == ["loop.yaml"]
 
@@ -235,3 +238,111 @@ def test_list_scenarios_marks_invalid_files_and_bad_folders(tmp_path, capsys):
     assert lines[2].split() == ["good", "planar_3r", "1"]
     assert main(["list", "scenarios", "--dir", str(tmp_path / "nowhere")]) == 1
     assert capsys.readouterr().err.strip().endswith("nowhere: is not a folder")
+
+
+def fail_if_simulated(*args, **kwargs):
+    raise AssertionError("the simulation must not start")
+
+
+@pytest.mark.parametrize("where", ["afile/out", "afile", "afile/a/b"])
+def test_out_under_a_file_is_refused_before_the_simulation(tmp_path, capsys, monkeypatch, where):
+    import vtm_pin.cli
+
+    monkeypatch.setattr(vtm_pin.cli, "run_scenario", fail_if_simulated)
+    (tmp_path / "afile").write_text("x")
+    assert main(["run", str(PAPER), "--out", str(tmp_path / where)]) == 1
+    err = capsys.readouterr().err
+    afile = tmp_path / "afile"
+    assert err == f"vtm-pin: error: command line: '--out': '{afile}' is a file, not a folder\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["afile"]
+
+
+def test_out_in_an_unwritable_place_is_refused_before_the_simulation(capsys, monkeypatch):
+    import vtm_pin.cli
+
+    monkeypatch.setattr(vtm_pin.cli, "run_scenario", fail_if_simulated)
+    assert main(["run", str(PAPER), "--out", "/proc/vtm-pin-test/out"]) == 1
+    assert capsys.readouterr().err.startswith("vtm-pin: error: command line: '--out': cannot write")
+
+
+def test_interrupt_during_the_imports_exits_130_in_one_line(capsys, monkeypatch):
+    """The console entry imports the CLI (Pinocchio, Matplotlib) inside its Ctrl-C guard."""
+    import importlib.abc
+
+    from vtm_pin.__main__ import entry_point
+
+    class Interrupting(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name == "vtm_pin.cli":
+                raise KeyboardInterrupt
+            return None
+
+    monkeypatch.delitem(sys.modules, "vtm_pin.cli")
+    monkeypatch.setattr(sys, "meta_path", [Interrupting(), *sys.meta_path])
+    assert entry_point() == 130
+    assert capsys.readouterr().err == "vtm-pin: interrupted; nothing written\n"
+
+
+def test_sigint_early_in_a_real_process_exits_130_in_one_line(tmp_path):
+    """Ctrl-C 0.3 s after start: during the imports (1-2 s) or the run, one line either way."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "vtm_pin", "run", str(PAPER), "--out", str(tmp_path / "out")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(0.3)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert err == "vtm-pin: interrupted; nothing written\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failure_prints_its_error_only_and_numpy_warnings_never(tmp_path, capsys, monkeypatch):
+    import warnings
+
+    import vtm_pin.cli
+    from vtm_pin import SimulationError, VtmWarning
+
+    def noisy(*args, **kwargs):
+        np.array([1e308]) * 10.0  # overflow: a NumPy RuntimeWarning outside the CLI
+        warnings.warn("something was assumed", VtmWarning, stacklevel=1)
+        raise SimulationError("it went wrong\non two lines")
+
+    monkeypatch.setattr(vtm_pin.cli, "run_scenario", noisy)
+    assert main(["run", str(PAPER), "--out", str(tmp_path / "out")]) == 1
+    assert capsys.readouterr().err == "vtm-pin: error: it went wrong on two lines\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_bug_is_one_line_too(tmp_path, capsys, monkeypatch):
+    import vtm_pin.cli
+
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setattr(vtm_pin.cli, "run_scenario", broken)
+    assert main(["run", str(PAPER), "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("vtm-pin: error: internal error (ZeroDivisionError: division by zero)")
+    assert err.count("\n") == 1 and list(tmp_path.iterdir()) == []
+
+
+def test_usage_errors_are_one_line(capsys):
+    assert main(["run", str(PAPER), "--dt", "abc"]) == 2
+    err = capsys.readouterr().err
+    assert err == "vtm-pin run: error: argument --dt: invalid float value: 'abc' (see --help)\n"
+
+
+def test_integrator_options_follow_the_scenario_rules(tmp_path, capsys):
+    out = str(tmp_path / "out")
+    assert main(["run", str(PAPER), "--out", out, "--dt", "inf"]) == 1
+    assert capsys.readouterr().err == (
+        "vtm-pin: error: command line: '--dt': inf is not a finite number\n"
+    )
+    assert main(["run", str(PAPER), "--out", out, "--dt", "1e-9"]) == 1
+    assert "'--dt': rk4 with dt = 1e-09 s would take 2000000000 steps" in capsys.readouterr().err
+    assert main(["run", str(PAPER), "--out", out, "--max-steps", "0"]) == 1
+    assert "'--max-steps': 0 must be >= 1" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

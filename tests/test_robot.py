@@ -6,6 +6,7 @@ from conftest import ROOT, robot
 from vtm_pin import (
     Drive,
     JointNotFound,
+    RobotDataError,
     RobotLoadError,
     RobotNotFound,
     UnsupportedJoint,
@@ -109,3 +110,105 @@ def test_continuous_joint_is_rejected(tmp_path):
 def test_drive_on_unknown_joint():
     with pytest.raises(JointNotFound, match=r"Joint 'elbow' not in the model.*joint1, joint2"):
         load_robot("planar_3r", drives={"elbow": Drive()})
+
+
+# --- physical validity of a URDF's inertias -------------------------------------------------
+
+URDF = (ROOT / "robots" / "planar_3r.urdf").read_text()
+MASS = '<mass value="108"/>'
+INERTIA = 'ixx="9.36" ixy="0" ixz="0" iyy="9.36" iyz="0" izz="0.72"'
+
+
+def write_urdf(tmp_path, text, name="bot"):
+    path = tmp_path / f"{name}.urdf"
+    path.write_text(text)
+    return path
+
+
+def last_link(mass, inertia):
+    """planar_3r with the last link's mass and inertia replaced."""
+    i, j = URDF.rfind(MASS), URDF.rfind(INERTIA)
+    return URDF[:i] + mass + URDF[i + len(MASS) : j] + inertia + URDF[j + len(INERTIA) :]
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (
+            URDF.replace(MASS, '<mass value="nan"/>', 1),
+            r"link 'link1': Inertial: mass \[nan\] is not a float",
+        ),
+        (last_link('<mass value="-1"/>', INERTIA), r"link 'link3': mass -1 kg is outside"),
+        (
+            URDF.replace('ixy="0"', 'ixy="50"', 1),
+            r"link 'link1': rotational inertia is not positive semi-definite",
+        ),
+        (
+            URDF.replace('izz="0.72"', 'izz="30"', 1),
+            r"link 'link1': principal moments 9.36, 9.36, 30 kg m\^2 break the triangle inequality",
+        ),
+        (
+            last_link('<mass value="0"/>', 'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"'),
+            r"joint 'joint3' moves no mass or inertia: link 'link3'",
+        ),
+        (
+            URDF.replace('<axis xyz="0 1 0"/>', '<axis xyz="0 0 0"/>', 1),
+            r"joint 'joint1' has no axis",
+        ),
+        ('<robot name="r"><link name="base"/></robot>', r"has no moving joint"),
+    ],
+    ids=[
+        "nan mass",
+        "negative mass",
+        "not PD",
+        "triangle",
+        "massless leaf",
+        "zero axis",
+        "no joint",
+    ],
+)
+def test_unphysical_robot_is_refused_naming_the_link(tmp_path, text, message):
+    with pytest.raises(RobotLoadError, match=r"bot\.urdf': " + message) as info:
+        load_robot(write_urdf(tmp_path, text))
+    assert "\n" not in str(info.value)
+
+
+def test_triangle_inequality_allows_rounded_figures(tmp_path):
+    # A thin plate has I_z = I_x + I_y exactly; rounded to 4 digits it may exceed by ~1e-4.
+    plate = URDF.replace(INERTIA, 'ixx="1.001" ixy="0" ixz="0" iyy="1" iyz="0" izz="2.0015"', 1)
+    assert load_robot(write_urdf(tmp_path, plate)).nv == 3
+
+
+def test_massless_leaf_moves_when_its_joint_has_a_rotor(tmp_path):
+    path = write_urdf(
+        tmp_path, last_link('<mass value="0"/>', 'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"')
+    )
+    assert load_robot(path, drives={"joint3": Drive(gear_ratio=10, rotor_inertia=1e-3)}).nv == 3
+
+
+# --- robot data files beside a URDF ---------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("drives:\n  joint1: {gear_ratio: -5}\n", r"'drives.joint1.gear_ratio': -5 must be > 0"),
+        ("drives:\n  joint2: {rotor_inertia: -1}\n", r"'drives.joint2.rotor_inertia': -1 must be"),
+        ("drives:\n  elbow: {gear_ratio: 2}\n", r"'drives.elbow': unknown joint; the joints are"),
+        ("drive: {}\n", r"'drive': unknown key; allowed keys here: assumptions, drives"),
+        ("drives: [\n  joint1: {gear_ratio: 2}\n", r"not valid YAML at line 3: expected"),
+    ],
+)
+def test_robot_data_file_follows_the_scenario_rules_in_one_line(tmp_path, content, message):
+    (tmp_path / "bot.yaml").write_text(content)
+    with pytest.raises(RobotDataError, match=r"bot\.yaml: " + message) as info:
+        load_robot(write_urdf(tmp_path, URDF))
+    assert "\n" not in str(info.value)
+
+
+def test_robot_data_file_gives_drives_and_a_scenario_beside_the_urdf_is_not_one(tmp_path):
+    path = write_urdf(tmp_path, URDF)
+    (tmp_path / "bot.yaml").write_text("drives:\n  joint2: {gear_ratio: 50, rotor_inertia: 1e-4}\n")
+    assert load_robot(path).gear_ratio.tolist() == [1.0, 50.0, 1.0]
+    (tmp_path / "bot.yaml").write_text("robot: bot.urdf\ninitial: {q: [0, 0, 0]}\nduration: 1\n")
+    assert load_robot(path).gear_ratio.tolist() == [1.0, 1.0, 1.0]

@@ -1,54 +1,107 @@
-"""vtm_pin: momentum-consistent joint locking for robot emergency stops, on Pinocchio."""
+"""vtm_pin: momentum-consistent joint locking for robot emergency stops, on Pinocchio.
+
+The names below are imported on first use (PEP 562), so that ``import vtm_pin`` and the
+``vtm-pin`` command start without loading Pinocchio until they need it.
+"""
 
 from __future__ import annotations
 
-from .analysis import EnergyMomentum, compute_energy_momentum
-from .dynamics import (
-    compute_bias,
-    compute_energy,
-    compute_forward_dynamics,
-    compute_gravity,
-    compute_M,
-)
-from .exceptions import (
-    BrakeError,
-    ConstraintError,
-    JointNotFound,
-    RobotLoadError,
-    RobotNotFound,
-    ScenarioError,
-    SimulationError,
-    TransitionError,
-    UnsupportedJoint,
-    VtmError,
-    VtmWarning,
-)
-from .holonomic import FrameConstraint
-from .integrators import RK4
-from .robot import Drive, Robot, load_robot
-from .scenario import Scenario, build_scenario, load_scenario, run_scenario
-from .simulation import EventRecord, LockEvent, SimulationResult, simulate
-from .topology import Topology
-from .transitions import TRANSITIONS, TransitionResult
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .analysis import EnergyMomentum, compute_energy_momentum
+    from .dynamics import (
+        compute_bias,
+        compute_energy,
+        compute_forward_dynamics,
+        compute_gravity,
+        compute_M,
+    )
+    from .exceptions import (
+        BrakeError,
+        ConstraintError,
+        ConstraintNotMet,
+        InputError,
+        JointNotFound,
+        RobotDataError,
+        RobotLoadError,
+        RobotNotFound,
+        ScenarioError,
+        SimulationError,
+        StepLimitError,
+        TransitionError,
+        UnsupportedJoint,
+        VtmError,
+        VtmWarning,
+    )
+    from .holonomic import FrameConstraint
+    from .integrators import RK4
+    from .robot import Drive, Robot, load_robot
+    from .scenario import Scenario, build_scenario, load_scenario, run_scenario
+    from .simulation import EventRecord, LockEvent, SimulationResult, simulate
+    from .topology import Topology
+    from .transitions import TRANSITIONS, TransitionResult
+
+#: Module that defines each public name.
+_SOURCES = {
+    "analysis": ["EnergyMomentum", "compute_energy_momentum"],
+    "dynamics": [
+        "compute_M",
+        "compute_bias",
+        "compute_energy",
+        "compute_forward_dynamics",
+        "compute_gravity",
+    ],
+    "exceptions": [
+        "BrakeError",
+        "ConstraintError",
+        "ConstraintNotMet",
+        "InputError",
+        "JointNotFound",
+        "RobotDataError",
+        "RobotLoadError",
+        "RobotNotFound",
+        "ScenarioError",
+        "SimulationError",
+        "StepLimitError",
+        "TransitionError",
+        "UnsupportedJoint",
+        "VtmError",
+        "VtmWarning",
+    ],
+    "holonomic": ["FrameConstraint"],
+    "integrators": ["RK4"],
+    "robot": ["Drive", "Robot", "load_robot"],
+    "scenario": ["Scenario", "build_scenario", "load_scenario", "run_scenario"],
+    "simulation": ["EventRecord", "LockEvent", "SimulationResult", "simulate"],
+    "topology": ["Topology"],
+    "transitions": ["TRANSITIONS", "TransitionResult"],
+}
+_MODULE_OF = {name: module for module, names in _SOURCES.items() for name in names}
 
 __all__ = [
     "RK4",
     "TRANSITIONS",
     "BrakeError",
     "ConstraintError",
+    "ConstraintNotMet",
     "Drive",
     "EnergyMomentum",
     "EventRecord",
     "FrameConstraint",
+    "InputError",
     "JointNotFound",
     "LockEvent",
     "Robot",
+    "RobotDataError",
     "RobotLoadError",
     "RobotNotFound",
     "Scenario",
     "ScenarioError",
     "SimulationError",
     "SimulationResult",
+    "StepLimitError",
     "Topology",
     "TransitionError",
     "TransitionResult",
@@ -67,3 +120,22 @@ __all__ = [
     "run_scenario",
     "simulate",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """A public name (or a submodule, ``vtm_pin.scenario``), imported on first use."""
+    module = _MODULE_OF.get(name)
+    if module is None:
+        try:
+            return importlib.import_module(f".{name}", __name__)
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise  # the submodule exists but lacks a dependency
+            raise AttributeError(f"module 'vtm_pin' has no attribute '{name}'") from None
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from importlib.metadata import version
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -60,6 +61,8 @@ from .transitions import TRANSITIONS
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: A run shows a progress bar (on a terminal) once it has taken this long [s].
 PROGRESS_DELAY = 1.0
+#: Longest message printed [characters]; every message is one line.
+MAX_MESSAGE = 2000
 
 _EPILOG = """\
 units: SI throughout - time s, angles rad, rates rad/s, torques N m, impulses N m s, energy J,
@@ -80,33 +83,60 @@ examples:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code instead of exiting (tests call this)."""
+    """Run the command line; returns the exit code instead of exiting (tests call this).
+
+    Every message is one line on stderr. Warnings are printed once the command has succeeded;
+    a failing command prints its error line only. NumPy's floating-point warnings are not
+    printed: a state that overflows is caught and explained by the simulation's own checks.
+    """
     parser = _parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse has printed its usage error, or --help / --version
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(record=True) as caught, np.errstate(all="ignore"):
         warnings.simplefilter("always", VtmWarning)
-        warnings.showwarning = _show_warning
         try:
-            return int(args.func(args))
+            code = int(args.func(args))
         except VtmError as exc:
-            print(f"vtm-pin: error: {exc}", file=sys.stderr)
-            return EXIT_ERROR
+            return _fail(str(exc))
         except KeyboardInterrupt:
             print("vtm-pin: interrupted; nothing written", file=sys.stderr)
             return EXIT_INTERRUPTED
+        except Exception as exc:  # a bug: still one line, and no partial output
+            if os.environ.get("VTM_PIN_DEBUG"):
+                raise
+            return _fail(
+                f"internal error ({type(exc).__name__}: {exc}); please report it with the input "
+                "(VTM_PIN_DEBUG=1 shows the traceback)"
+            )
+    for message in dict.fromkeys(str(w.message) for w in caught):
+        print(f"vtm-pin: warning: {one_line(message)}", file=sys.stderr)
+    return code
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # type: ignore[no-untyped-def]
-    """One line per warning, like the errors."""
-    print(f"vtm-pin: warning: {message}", file=sys.stderr)
+def one_line(text: str) -> str:
+    """``text`` on one line (whitespace collapsed), cut to :data:`MAX_MESSAGE` characters."""
+    text = " ".join(text.split())
+    return text if len(text) <= MAX_MESSAGE else text[: MAX_MESSAGE - 1] + "…"
+
+
+def _fail(message: str) -> int:
+    print(f"vtm-pin: error: {one_line(message)}", file=sys.stderr)
+    return EXIT_ERROR
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, with a usage error in one line like every other error."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print the error in one line and exit with status 2."""
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {one_line(message)} (see --help)\n")
 
 
 def _parser() -> argparse.ArgumentParser:
     formatter = argparse.RawDescriptionHelpFormatter
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="vtm-pin",
         description=_wrap(
             "Emergency-stop simulator: joints lock one after another, and at each lock the "
@@ -173,6 +203,14 @@ def _parser() -> argparse.ArgumentParser:
         metavar="X",
         help="dop853 absolute tolerance [rad for angles, rad/s for rates]",
     )
+    run.add_argument(
+        "--max-steps",
+        type=int,
+        default=None,
+        metavar="N",
+        help="most integrator steps (rk4/euler: of the run, refused up front; dop853: between "
+        "two events), overriding the scenario's integrator.max_steps (default 1000000)",
+    )
     output = run.add_mutually_exclusive_group()
     output.add_argument(
         "--quiet", action="store_true", help="print nothing but warnings and errors"
@@ -220,8 +258,7 @@ def _wrap(text: str) -> str:
 def _run(args: argparse.Namespace) -> int:
     scenario = _with_integrator_options(load_scenario(args.scenario), args)
     out = args.out if args.out is not None else Path("results") / scenario.name
-    if out.exists() and not out.is_dir():
-        raise ScenarioError("command line", "--out", f"'{out}' exists and is not a folder")
+    _check_output_folder(out)
     show = not (args.quiet or args.json)
     rules = [args.transition or scenario.transition]
     rules += [name for name in dict.fromkeys(args.compare) if name != rules[0]]
@@ -252,23 +289,52 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _with_integrator_options(scenario: Scenario, args: argparse.Namespace) -> Scenario:
-    """The scenario with --integrator / --dt / --rtol / --atol applied."""
-    options = {"method": args.integrator, "dt": args.dt, "rtol": args.rtol, "atol": args.atol}
+    """The scenario with --integrator / --dt / --rtol / --atol / --max-steps applied.
+
+    The options are checked by the scenario's own rules (``integrator`` in the schema).
+    """
+    options = {
+        "method": args.integrator,
+        "dt": args.dt,
+        "rtol": args.rtol,
+        "atol": args.atol,
+        "max_steps": args.max_steps,
+    }
     overrides = {key: value for key, value in options.items() if value is not None}
     if not overrides:
         return scenario
+    settings = integrator_settings(scenario.integrator)
     spec = {"method": overrides.get("method", scenario.integrator.name), **overrides}
+    spec.setdefault("max_steps", settings.get("max_steps"))
     if "method" not in overrides:
-        spec = {**integrator_settings(scenario.integrator), **overrides}
-    for key, value in spec.items():
-        if key != "method" and not value > 0:
-            raise ScenarioError("command line", f"--{key}", f"{value} is not > 0")
+        spec = {**settings, **overrides}
+    spec = {key: value for key, value in spec.items() if value is not None}
     try:
         integrator = build_integrator(spec, scenario.duration, "command line")
     except ScenarioError as exc:
-        option = "--" + exc.key.split(".")[-1]
+        option = "--" + exc.key.split(".")[-1].replace("_", "-")
         raise ScenarioError("command line", option, exc.problem) from exc
     return dataclasses.replace(scenario, integrator=integrator)
+
+
+def _check_output_folder(out: Path) -> None:
+    """Refuse, before any simulation, an output folder that cannot be created or written.
+
+    Nothing is created: a probe folder is made (and removed) in the nearest existing folder
+    on the way to ``out``.
+    """
+    try:
+        target = Path(os.path.abspath(out))
+        existing = next(p for p in [target, *target.parents] if p.exists())
+        if not existing.is_dir():
+            problem = f"'{existing}' is a file, not a folder"
+        else:
+            os.rmdir(tempfile.mkdtemp(prefix=".vtm-pin-probe-", dir=existing))
+            return
+    except (OSError, ValueError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        problem = f"cannot write in '{out}' ({reason})"
+    raise ScenarioError("command line", "--out", problem)
 
 
 @contextmanager
@@ -343,9 +409,10 @@ def _write_outputs(
     Returns the names of the files written.
     """
     parent = out.resolve().parent
-    parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
+    staging: Path | None = None
     try:
+        parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         for name, result in results.items():
             suffix = "" if name == main_rule else f"_{name}"
@@ -356,8 +423,13 @@ def _write_outputs(
         written = sorted(item.name for item in staging.iterdir())
         for name in written:
             os.replace(staging / name, out / name)
+    except OSError as exc:
+        raise ScenarioError(
+            "command line", "--out", f"cannot write '{out}' ({exc.strerror or exc})"
+        ) from exc
     finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        if staging is not None:
+            shutil.rmtree(staging, ignore_errors=True)
     return written
 
 

@@ -6,6 +6,22 @@ from collections.abc import Sequence
 
 #: Fixed-base arms of example-robot-data named first when a robot is not found.
 _ARMS = ("ur3", "ur5", "ur10", "panda", "kinova", "xarm7", "z1", "so100")
+#: Longest excerpt of a user's value quoted in a message [characters].
+EXCERPT_LENGTH = 60
+
+
+def excerpt(value: object, limit: int = EXCERPT_LENGTH) -> str:
+    r"""A short one-line rendering of a value for a message: ``limit`` characters at most.
+
+    Strings are shown without quotes and with control characters escaped (a newline becomes
+    ``\n``); other values by ``repr``. Longer text is cut and ends with "…".
+    """
+    if isinstance(value, int) and value.bit_length() > 4 * limit:  # repr may refuse: too long
+        return (
+            f"{'-' if value < 0 else ''}<an integer of {int(value.bit_length() * 0.30103)} digits>"
+        )
+    text = repr(value)[1:-1] if isinstance(value, str) else repr(value)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 class VtmError(Exception):
@@ -22,8 +38,9 @@ class RobotNotFound(VtmError):
         arms = [r for r in _ARMS if r in self.remote]
         more = len(self.remote) - len(arms)
         super().__init__(
-            f"Robot '{name}' not found: not a URDF path, not in robots/ ({', '.join(local)}), "
-            f"and not an example-robot-data name ({', '.join(arms)} and {more} more)"
+            f"Robot '{excerpt(name)}' not found: not a URDF path, not in robots/ "
+            f"({', '.join(local)}), and not an example-robot-data name "
+            f"({', '.join(arms)} and {more} more)"
         )
 
 
@@ -33,7 +50,7 @@ class RobotLoadError(VtmError):
     def __init__(self, source: str, reason: str) -> None:
         self.source = source
         self.reason = reason
-        super().__init__(f"Could not load robot from '{source}': {reason}")
+        super().__init__(f"Could not load robot from '{excerpt(source, 200)}': {reason}")
 
 
 class UnsupportedJoint(VtmError):
@@ -54,11 +71,19 @@ class JointNotFound(VtmError):
     def __init__(self, name: str, joints: Sequence[str]) -> None:
         self.name = name
         self.joints = list(joints)
-        super().__init__(f"Joint '{name}' not in the model; its joints are: {', '.join(joints)}")
+        super().__init__(
+            f"Joint '{excerpt(name)}' not in the model; its joints are: {', '.join(joints)}"
+        )
 
 
-class ScenarioError(VtmError):
-    """A scenario file is malformed: names the file, the key and what is allowed."""
+class InputError(VtmError):
+    """An input file or option is malformed: names the file, the key and what is allowed.
+
+    Attributes:
+        source: The file (or ``"command line"``); "" when the input was not read from a file.
+        key: Key path in the file (``integrator.dt``, ``events[0].t``); "" for the whole file.
+        problem: What is wrong and what is allowed, one line.
+    """
 
     def __init__(self, source: str, key: str, problem: str) -> None:
         self.source = source
@@ -69,6 +94,14 @@ class ScenarioError(VtmError):
         super().__init__(f"{where}{key_text}{problem}")
 
 
+class ScenarioError(InputError):
+    """A scenario file is malformed: names the file, the key and what is allowed."""
+
+
+class RobotDataError(InputError):
+    """A robot data file (``<name>.yaml`` beside a URDF) is malformed."""
+
+
 class TransitionError(VtmError):
     """A transition could not be computed (redundant or rank-deficient constraints)."""
 
@@ -77,12 +110,50 @@ class SimulationError(VtmError):
     """The simulation diverged or was asked for something it cannot do."""
 
 
+class StepLimitError(SimulationError):
+    """An integrator would need more steps than its ``max_steps`` allows.
+
+    Attributes:
+        steps: Steps needed (fixed step) or taken so far (adaptive).
+        limit: The integrator's ``max_steps``.
+    """
+
+    def __init__(self, message: str, steps: float, limit: int) -> None:
+        self.steps = steps
+        self.limit = limit
+        super().__init__(message)
+
+
 class BrakeError(VtmError):
     """A brake or stop figure is out of range."""
 
 
 class ConstraintError(VtmError):
     """A holonomic constraint is malformed, redundant, or cannot be met."""
+
+
+class ConstraintNotMet(ConstraintError):
+    """A frame constraint activated where its frames are apart (or off its docking target).
+
+    Attributes:
+        name: The constraint's name.
+        t: Activation time [s].
+        distance: Largest residual of its translation rows at activation [m].
+        angle: Largest residual of its rotation rows at activation [rad].
+    """
+
+    def __init__(
+        self, name: str, t: float, distance: float, angle: float, tolerance: float
+    ) -> None:
+        self.name = name
+        self.t = t
+        self.distance = distance
+        self.angle = angle
+        super().__init__(
+            f"Constraint '{excerpt(name)}' activates at t = {t:g} s {distance:.3g} m and "
+            f"{angle:.3g} rad away from where it holds; it must activate within {tolerance:g} m "
+            "and rad of it (move its target or its activation time)"
+        )
 
 
 class VtmWarning(UserWarning):

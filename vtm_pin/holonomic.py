@@ -24,12 +24,17 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from .constraints import check_independent
 from .dynamics import compute_M
-from .exceptions import ConstraintError, VtmWarning
+from .exceptions import ConstraintError, ConstraintNotMet, VtmWarning, excerpt
 from .robot import Robot
 
 _AXES = {"x": 0, "y": 1, "z": 2, "rx": 3, "ry": 4, "rz": 5}
 _LWA = pin.LOCAL_WORLD_ALIGNED
+#: A frame constraint activating at an event must hold there to within this distance [m] and
+#: angle [rad]: the frames meet (or the docked frame is at its target). Farther apart, the
+#: activation would pull them together with Baumgarte forces no mechanism exerts.
+ACTIVATION_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -74,13 +79,32 @@ class FrameConstraint:
         return len(self.axes)
 
     def check(self, model: pin.Model) -> None:
-        """Raise if a frame is not in the model."""
+        """Raise if a frame is not in the model, or the constraint can constrain nothing.
+
+        A loop between two frames of the same body, or a docking of a frame fixed to the
+        world, has a zero Jacobian in every configuration.
+        """
         for frame in (self.frame_a, self.frame_b):
             if frame is not None and not model.existFrame(frame):
                 names = ", ".join(f.name for f in model.frames)
                 raise ConstraintError(
-                    f"Constraint '{self.name}': no frame '{frame}'; frames: {names}"
+                    f"Constraint '{excerpt(self.name)}': no frame '{excerpt(frame)}'; "
+                    f"frames: {names}"
                 )
+        joint_a = model.frames[model.getFrameId(self.frame_a)].parentJoint
+        if self.frame_b is None and joint_a == 0:
+            raise ConstraintError(
+                f"Constraint '{excerpt(self.name)}': frame '{excerpt(self.frame_a)}' is fixed to "
+                "the world, so docking it constrains nothing; dock a frame that moves"
+            )
+        if (
+            self.frame_b is not None
+            and model.frames[model.getFrameId(self.frame_b)].parentJoint == joint_a
+        ):
+            raise ConstraintError(
+                f"Constraint '{excerpt(self.name)}': frames '{excerpt(self.frame_a)}' and "
+                f"'{excerpt(self.frame_b)}' move with the same body, so the loop closes nothing"
+            )
 
     def latch(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> FrameConstraint:
         """A docking constraint whose target is frame_a's pose at q (activation in place)."""
@@ -125,6 +149,33 @@ def compute_kinematics(model: pin.Model, data: pin.Data, q: np.ndarray, v: np.nd
     pin.updateFramePlacements(model, data)
 
 
+def check_activation(
+    frames: Sequence[FrameConstraint], model: pin.Model, data: pin.Data, q: np.ndarray, t: float
+) -> None:
+    """Refuse frame constraints activating at ``t`` away from where they hold.
+
+    Args:
+        frames: Constraints activating at ``t``, targets latched.
+        model: The robot model.
+        data: Its data (overwritten).
+        q: Configuration at the activation [rad].
+        t: Activation time [s].
+
+    Raises:
+        ConstraintNotMet: A constraint's residual exceeds :data:`ACTIVATION_TOLERANCE`.
+    """
+    if not frames:
+        return
+    compute_kinematics(model, data, q, np.zeros(model.nv))
+    for frame in frames:
+        h, _, _ = frame.evaluate(model, data)
+        linear = np.array([_AXES[a] < 3 for a in frame.axes], dtype=bool)
+        distance = float(np.max(np.abs(h[linear]), initial=0.0))
+        angle = float(np.max(np.abs(h[~linear]), initial=0.0))
+        if not (distance <= ACTIVATION_TOLERANCE and angle <= ACTIVATION_TOLERANCE):
+            raise ConstraintNotMet(frame.name, t, distance, angle, ACTIVATION_TOLERANCE)
+
+
 def stack(
     constraints: tuple[FrameConstraint, ...], model: pin.Model, data: pin.Data
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -154,7 +205,8 @@ def project_initial_state(
     activating the constraints), the configuration by minimum-norm steps.
 
     Raises:
-        ConstraintError: The constraints cannot be met from q (no convergence).
+        ConstraintError: The constraints cannot be met from q (no convergence), or their rows
+            are redundant there (a loop closing a frame on itself, a docked base frame).
     """
     model, data = robot.model, robot.model.createData()
     q0, v0 = q.copy(), v.copy()
@@ -172,6 +224,7 @@ def project_initial_state(
         )
     compute_kinematics(model, data, q, v)
     _, J, _ = stack(tuple(frames), model, data)
+    check_independent(J, [f"{f.name}.{a}" for f in frames for a in f.axes])
     M = compute_M(model, data, q)
     v = v - M_weighted_correction(M, J, v)
     dq, dv = np.max(np.abs(q - q0)), np.max(np.abs(v - v0))

@@ -2,22 +2,85 @@
 
 from __future__ import annotations
 
+import math
 import os
+import re
 import sys
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pinocchio as pin
-import yaml
 
-from .exceptions import JointNotFound, RobotLoadError, RobotNotFound, UnsupportedJoint
+from .exceptions import (
+    JointNotFound,
+    RobotDataError,
+    RobotLoadError,
+    RobotNotFound,
+    UnsupportedJoint,
+    excerpt,
+)
+from .inputs import check_schema, number, read_yaml
 
 #: Folder of the URDF models shipped with the project.
 ROBOTS_DIR = Path(__file__).resolve().parent.parent / "robots"
+
+#: Largest gear ratio [-] and rotor inertia (motor side) [kg m^2] accepted for a drive.
+MAX_GEAR_RATIO, MAX_ROTOR_INERTIA = 1.0e4, 100.0
+#: Drive data per joint name, as a scenario's ``drives`` and a robot data file give them.
+DRIVES_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "Gear ratio [-] and rotor inertia [kg m^2] per joint name; "
+    "armature = gear_ratio^2 * rotor_inertia. Default: none.",
+    "additionalProperties": {
+        "type": "object",
+        "additionalProperties": False,
+        "properties": {
+            "gear_ratio": number(
+                0.0,
+                MAX_GEAR_RATIO,
+                "Motor angle per joint angle [-], at most 1e4. Default: 1.",
+                exclusive_low=True,
+            ),
+            "rotor_inertia": number(
+                0.0,
+                MAX_ROTOR_INERTIA,
+                "Rotor inertia, motor side [kg m²], at most 100. Default: 0.",
+            ),
+        },
+    },
+}
+#: Schema of a robot data file, ``<name>.yaml`` beside ``<name>.urdf``.
+ROBOT_DATA_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "additionalProperties": False,
+    "properties": {
+        "drives": DRIVES_SCHEMA,
+        "tool_frame": {"type": "string", "description": "Frame followed by stopping reports."},
+        "assumptions": {
+            "type": "array",
+            "items": {"type": "string"},
+            "description": "Stated assumptions behind the robot's figures, quoted by reports.",
+        },
+    },
+}
+
+#: Largest URDF file read [bytes].
+MAX_URDF_BYTES = 10_000_000
+#: Largest link mass [kg], principal moment of inertia [kg m^2], and distance of a centre of
+#: mass, joint or frame from its parent frame [m] accepted in a robot model.
+MAX_MASS, MAX_MOMENT, MAX_OFFSET = 1.0e5, 1.0e5, 100.0
+#: Relative slack of the checks of a link's rotational inertia (positive semi-definite, triangle
+#: inequality), as a fraction of its largest principal moment: URDF inertias are often rounded
+#: to 4 significant digits, which moves a flat plate's moments (I_z = I_x + I_y) by up to 1e-4.
+INERTIA_RTOL = 1.0e-3
+#: The mass matrix at the neutral configuration counts as singular when its smallest eigenvalue
+#: is below this fraction of its largest (the worst example-robot-data arm: 4e-7).
+SINGULAR_RTOL = 1.0e-12
 
 
 @dataclass(frozen=True)
@@ -114,35 +177,21 @@ def load_robot(
 
     Raises:
         RobotNotFound: ``spec`` names no robot.
-        RobotLoadError: The URDF exists but does not parse.
+        RobotLoadError: The URDF does not parse, its parser reported an error, it has no
+            moving joint, or its inertias are not physical (the message names the link).
+        RobotDataError: The robot data file beside the URDF is malformed.
         UnsupportedJoint: A joint has nq != nv (``continuous``, spherical, free-flyer).
         JointNotFound: ``drives`` names a joint the model does not have.
     """
     text = str(spec)
-    path = Path(text)
-    if not path.is_absolute() and base_dir is not None and (base_dir / path).exists():
-        path = base_dir / path
-    if path.suffix.lower() == ".urdf" or path.exists():
-        if not path.is_file():
-            raise RobotLoadError(text, "no such file")
-        model = _build_from_urdf(path)
-        source = str(path)
-    elif (ROBOTS_DIR / f"{text}.urdf").is_file():
-        source = str(ROBOTS_DIR / f"{text}.urdf")
-        model = _build_from_urdf(Path(source))
-    elif text in list_example_robots():
-        import example_robot_data as erd
-
-        try:
-            wrapper = erd.load(text)
-        except Exception as exc:  # the loader raises bare exceptions of several kinds
-            raise RobotLoadError(text, str(exc)) from exc
-        model = wrapper.model
-        source = str(getattr(wrapper, "urdf", text))
-    else:
-        raise RobotNotFound(text, list_local_robots(), list_example_robots())
+    model, source = _load_model(text, base_dir)
     joints = _check_joints(model)
-    sidecar = _read_sidecar(Path(source).with_suffix(".yaml"))
+    if not joints:
+        raise RobotLoadError(
+            source, "has no moving joint; vtm-pin needs at least one revolute or prismatic joint"
+        )
+    _check_geometry(model, source)
+    sidecar = _read_sidecar(Path(source).with_suffix(".yaml"), joints)
     all_drives = {**sidecar.get("drives", {}), **(drives or {})}
     gear_ratio = np.ones(len(joints))
     for joint, drive in all_drives.items():
@@ -153,9 +202,12 @@ def load_robot(
         model.armature[i] = drive.armature
         model.rotorGearRatio[i] = drive.gear_ratio
         model.rotorInertia[i] = drive.rotor_inertia
+    _check_mass_matrix(model, source)
     tool_frame = sidecar.get("tool_frame") or _default_tool_frame(model)
     if not model.existFrame(tool_frame):
-        raise RobotLoadError(source, f"tool frame '{tool_frame}' is not a frame of the model")
+        raise RobotLoadError(
+            source, f"tool frame '{excerpt(tool_frame)}' is not a frame of the model"
+        )
     return Robot(
         name=text,
         source=source,
@@ -167,24 +219,70 @@ def load_robot(
     )
 
 
-def _read_sidecar(path: Path) -> dict[str, Any]:
-    """Drives, tool frame and assumptions from ``<urdf stem>.yaml``, if that file exists."""
-    if not path.is_file():
-        return {}
+def _load_model(text: str, base_dir: Path | None) -> tuple[pin.Model, str]:
+    """The Pinocchio model ``text`` names, and the file it was built from."""
     try:
-        raw = yaml.safe_load(path.read_text()) or {}
-        if not isinstance(raw, dict) or set(raw) - {"drives", "tool_frame", "assumptions"}:
-            raise ValueError("keys must be drives, tool_frame, assumptions")
-        drives = {
-            str(joint): Drive(float(d.get("gear_ratio", 1.0)), float(d.get("rotor_inertia", 0.0)))
-            for joint, d in (raw.get("drives") or {}).items()
-        }
-    except (yaml.YAMLError, ValueError, AttributeError, TypeError) as exc:
-        raise RobotLoadError(str(path), f"bad robot data file: {exc}") from exc
+        path = Path(text)
+        if not path.is_absolute() and base_dir is not None and (base_dir / path).exists():
+            path = base_dir / path
+        is_path = text != "" and (path.suffix.lower() == ".urdf" or path.exists())
+        problem = "no such file" if not path.exists() else "not a URDF file"
+        is_file = path.is_file()
+        local = ROBOTS_DIR / f"{text}.urdf"
+        is_local = not is_path and "/" not in text and text != "" and local.is_file()
+    except (OSError, ValueError) as exc:  # a name too long for a path, or with a NUL in it
+        raise RobotNotFound(text, list_local_robots(), list_example_robots()) from exc
+    if is_path:
+        if not is_file:
+            raise RobotLoadError(text, problem)
+        return _build_from_urdf(path), str(path)
+    if is_local:
+        return _build_from_urdf(local), str(local)
+    if text not in list_example_robots():
+        raise RobotNotFound(text, list_local_robots(), list_example_robots())
+    import example_robot_data as erd
+
+    with _parser_messages() as messages:
+        try:
+            wrapper = erd.load(text)
+        except Exception as exc:  # the loader raises bare exceptions of several kinds
+            raise RobotLoadError(text, excerpt(" ".join(str(exc).split()), 200)) from exc
+    _refuse_parser_errors(messages, text)
+    return wrapper.model, str(getattr(wrapper, "urdf", text))
+
+
+def _read_sidecar(path: Path, joints: Sequence[str]) -> dict[str, Any]:
+    """Drives, tool frame and assumptions from ``<urdf stem>.yaml``, if that file exists.
+
+    A file there with a ``robot`` key is a scenario (every scenario names its robot), not
+    robot data: it is ignored. Robot data follow :data:`ROBOT_DATA_SCHEMA`, the same rules as
+    a scenario's ``drives``.
+
+    Raises:
+        RobotDataError: The file is malformed; the message names it and the key.
+    """
+    try:
+        if not path.is_file():
+            return {}
+    except (OSError, ValueError):
+        return {}
+    raw = read_yaml(path, RobotDataError)
+    if raw is None or (isinstance(raw, Mapping) and "robot" in raw):
+        return {}
+    check_schema(raw, ROBOT_DATA_SCHEMA, str(path), RobotDataError)
+    drives = {}
+    for joint, d in raw.get("drives", {}).items():
+        if joint not in joints:
+            raise RobotDataError(
+                str(path),
+                f"drives.{excerpt(joint)}",
+                f"unknown joint; the joints are: {', '.join(joints)}",
+            )
+        drives[joint] = Drive(float(d.get("gear_ratio", 1.0)), float(d.get("rotor_inertia", 0.0)))
     return {
         "drives": drives,
         "tool_frame": raw.get("tool_frame"),
-        "assumptions": [str(a) for a in raw.get("assumptions") or []],
+        "assumptions": list(raw.get("assumptions", [])),
     }
 
 
@@ -195,25 +293,166 @@ def _default_tool_frame(model: pin.Model) -> str:
 
 
 def _build_from_urdf(path: Path) -> pin.Model:
-    """Parse a URDF with urdfdom's own messages caught instead of printed to stderr."""
-    with tempfile.TemporaryFile(mode="w+") as log:
+    """Parse a URDF; an error urdfdom reports (even one it then skips) refuses the file."""
+    try:
+        with path.open("rb") as file:
+            data = file.read(MAX_URDF_BYTES + 1)
+        if len(data) > MAX_URDF_BYTES:
+            raise RobotLoadError(str(path), f"is larger than {MAX_URDF_BYTES} bytes")
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RobotLoadError(
+            str(path), f"is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})"
+        ) from exc
+    except OSError as exc:
+        raise RobotLoadError(str(path), f"cannot read the file ({exc.strerror})") from exc
+    with _parser_messages() as messages:
+        try:
+            model = pin.buildModelFromUrdf(str(path))
+        except (RuntimeError, ValueError) as exc:
+            error: Exception | None = exc
+        else:
+            error = None
+    if error is not None:
+        reason = messages[0] if messages else " ".join(str(error).split())
+        raise RobotLoadError(str(path), excerpt(reason, 200)) from error
+    _refuse_parser_errors(messages, str(path))
+    return model
+
+
+@contextmanager
+def _parser_messages() -> Iterator[list[str]]:
+    """Capture what urdfdom writes to stderr; yields its ``Error:`` lines once the block ends."""
+    messages: list[str] = []
+    with tempfile.TemporaryFile(mode="w+", errors="replace") as log:
         saved = os.dup(2)
         sys.stderr.flush()
         os.dup2(log.fileno(), 2)
         try:
-            model = pin.buildModelFromUrdf(str(path))
-            error = None
-        except (RuntimeError, ValueError) as exc:
-            error = exc
+            yield messages
         finally:
             os.dup2(saved, 2)
             os.close(saved)
-        log.seek(0)
-        details = [line.strip() for line in log if line.strip().startswith("Error:")]
-    if error is not None:
-        reason = details[0].removeprefix("Error:").strip() if details else str(error).strip()
-        raise RobotLoadError(str(path), reason) from error
-    return model
+            log.seek(0)
+            for line in log:
+                if line.strip().startswith("Error:"):
+                    messages.append(line.strip().removeprefix("Error:").strip())
+
+
+def _refuse_parser_errors(messages: Sequence[str], source: str) -> None:
+    """Refuse a model its URDF parser complained about, naming the link when it says which."""
+    if not messages:
+        return
+    links = [m.group(1) for m in (re.search(r"[Ll]ink \[([^\]]*)\]", x) for x in messages) if m]
+    where = f"link '{excerpt(links[0])}': " if links else ""
+    raise RobotLoadError(source, excerpt(f"{where}{'; '.join(messages)}", 200))
+
+
+def _link_name(model: pin.Model, jid: int) -> str:
+    """The URDF link moved by joint ``jid`` (its body frame), for messages."""
+    for frame in model.frames:
+        if frame.parentJoint == jid and frame.type == pin.FrameType.BODY:
+            return str(frame.name)
+    return str(model.names[jid])
+
+
+def _check_geometry(model: pin.Model, source: str) -> None:
+    """Refuse non-physical inertias and placements, naming the link (or frame).
+
+    Each Pinocchio body (a link with the links fixed to it) must have a finite mass in
+    [0, MAX_MASS] kg, its centre of mass and every joint and frame within MAX_OFFSET m of
+    their parent frame, and a rotational inertia that is positive semi-definite and obeys the
+    triangle inequality of principal moments (each at most the sum of the other two).
+    """
+    for jid in range(1, model.njoints):
+        problem = _inertia_problem(model.inertias[jid])
+        offset = model.jointPlacements[jid].homogeneous
+        if problem is None and not (np.all(np.isfinite(offset)) and _within(offset[:3, 3])):
+            problem = (
+                f"joint '{model.names[jid]}' is placed off its parent (beyond {MAX_OFFSET:g} m)"
+            )
+        if problem is not None:
+            raise RobotLoadError(source, f"link '{excerpt(_link_name(model, jid))}': {problem}")
+    for frame in model.frames:
+        placement = frame.placement.homogeneous
+        if not (np.all(np.isfinite(placement)) and _within(placement[:3, 3])):
+            raise RobotLoadError(
+                source,
+                f"frame '{excerpt(frame.name)}' is placed off its joint (not finite or beyond "
+                f"{MAX_OFFSET:g} m)",
+            )
+
+
+def _within(offset: np.ndarray) -> bool:
+    return bool(np.max(np.abs(offset)) <= MAX_OFFSET)
+
+
+def _inertia_problem(inertia: pin.Inertia) -> str | None:
+    """What is unphysical about one body's inertia, or None."""
+    mass = float(inertia.mass)
+    lever, rotational = np.asarray(inertia.lever), np.asarray(inertia.inertia)
+    if not (math.isfinite(mass) and np.all(np.isfinite(lever)) and np.all(np.isfinite(rotational))):
+        return "its inertia is not finite (a mass or moment that is nan or inf)"
+    if not 0.0 <= mass <= MAX_MASS:
+        return f"mass {mass:g} kg is outside [0, {MAX_MASS:g}] kg"
+    if not _within(lever):
+        return f"its centre of mass is more than {MAX_OFFSET:g} m from the link frame"
+    moments = np.linalg.eigvalsh(0.5 * (rotational + rotational.T))
+    shown = ", ".join(f"{x:.4g}" for x in moments)
+    slack = INERTIA_RTOL * max(float(moments[-1]), 0.0)
+    if moments[0] < -slack:
+        return (
+            f"rotational inertia is not positive semi-definite (principal moments {shown} kg m^2)"
+        )
+    if moments[-1] > MAX_MOMENT:
+        return f"principal moment {moments[-1]:.4g} kg m^2 is above {MAX_MOMENT:g} kg m^2"
+    if moments[2] > moments[0] + moments[1] + slack:
+        return (
+            f"principal moments {shown} kg m^2 break the triangle inequality (each must be at "
+            "most the sum of the other two)"
+        )
+    return None
+
+
+def _check_mass_matrix(model: pin.Model, source: str) -> None:
+    """Refuse a model whose mass matrix (with rotor inertias) is singular at q = neutral.
+
+    Each moving joint must move some mass or inertia (the links after it, or its rotor): a
+    body with zero mass and zero inertia at the end of a chain leaves its joint's row of M
+    zero, and forward dynamics would divide by it.
+    """
+    data = model.createData()
+    M = pin.crba(model, data, pin.neutral(model))
+    M = np.triu(M) + np.triu(M, 1).T
+    if not np.all(np.isfinite(M)):
+        raise RobotLoadError(source, "its mass matrix is not finite (check the joint axes)")
+    scale = max(float(np.max(np.abs(M))), np.finfo(float).tiny)
+    axes = np.linalg.norm(pin.computeJointJacobians(model, data, pin.neutral(model)), axis=0)
+    for jid in range(1, model.njoints):
+        i = model.joints[jid].idx_v
+        if not axes[i] > 0.0:
+            raise RobotLoadError(
+                source, f"joint '{excerpt(model.names[jid])}' has no axis (its <axis> is zero)"
+            )
+        if M[i, i] <= SINGULAR_RTOL * scale:
+            raise RobotLoadError(
+                source,
+                f"joint '{excerpt(model.names[jid])}' moves no mass or inertia: link "
+                f"'{excerpt(_link_name(model, jid))}' and the links after it have none about its "
+                "axis (give them an <inertial> with mass > 0, or the joint a rotor inertia)",
+            )
+    eigenvalues, vectors = np.linalg.eigh(M)
+    if eigenvalues[0] <= SINGULAR_RTOL * eigenvalues[-1]:
+        names = [
+            model.names[jid]
+            for jid in range(1, model.njoints)
+            if abs(vectors[model.joints[jid].idx_v, 0]) > 0.1
+        ]
+        raise RobotLoadError(
+            source,
+            f"its mass matrix is singular at the neutral configuration: joints "
+            f"{', '.join(names)} move no inertia together (check the links' <inertial> data)",
+        )
 
 
 def _check_joints(model: pin.Model) -> tuple[str, ...]:

@@ -3,27 +3,56 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import jsonschema
 import numpy as np
 import pinocchio as pin
-import yaml
 
 from .brakes import Brake
-from .exceptions import BrakeError, ConstraintError, JointNotFound, ScenarioError, VtmError
+from .exceptions import (
+    BrakeError,
+    ConstraintError,
+    ConstraintNotMet,
+    JointNotFound,
+    ScenarioError,
+    StepLimitError,
+    VtmError,
+    excerpt,
+)
 from .holonomic import FrameConstraint
-from .integrators import DOP853, FIXED_STEP, INTEGRATORS, Integrator
-from .robot import Drive, Robot, load_robot
+from .inputs import check_schema, number, read_yaml
+from .integrators import DEFAULT_MAX_STEPS, DOP853, FIXED_STEP, INTEGRATORS, Integrator
+from .integrators.base import steps_text
+from .robot import DRIVES_SCHEMA, Drive, Robot, load_robot
 from .simulation import DEFAULT_BAUMGARTE, LockEvent, SimulationResult, simulate
 from .stop import DEFAULT_GAIN, DEFAULT_REST_SPEED, Stop
 from .transitions import TRANSITIONS
 
-_NUMBER = {"type": "number"}
-_VECTOR3 = {"type": "array", "items": _NUMBER, "minItems": 3, "maxItems": 3}
+#: Bounds of scenario values: generous but finite, so that every number a file gives is one a
+#: robot can have; a value outside them is a typo (or 1e308) and is refused with its key.
+MAX_TIME = 3600.0  # [s] durations, event times, delays and ramps
+MAX_POSITION = 1.0e3  # [rad or m] joint positions
+MAX_RATE = 1.0e3  # [rad/s or m/s] joint rates
+MAX_TORQUE = 1.0e6  # [N m] drive torque limits and brake torques
+MAX_GAIN = 1.0e4  # [1/s] velocity feedback gain of a category-1 stop
+#: [1/s] Baumgarte gains: a correction faster than 1 ms is faster than any event of a stop,
+#: and above it the term beta^2 h amplifies round-off so that a tight dop853 run stalls.
+MAX_BAUMGARTE = 1.0e3
+MAX_DISTANCE = 100.0  # [m] docking target positions
+MAX_ANGLE = 10.0  # [rad] docking target roll, pitch, yaw
+MIN_RTOL, MIN_ATOL = 1.0e-13, 1.0e-15  # [-], [state units]: below them DOP853 meets round-off
+MAX_STEPS_LIMIT = 1_000_000_000  # largest integrator.max_steps accepted
+
+_VECTOR3_M = {
+    "type": "array",
+    "items": number(-MAX_DISTANCE, MAX_DISTANCE, "Coordinate [m]."),
+    "minItems": 3,
+    "maxItems": 3,
+}
+_VECTOR3_RAD = {**_VECTOR3_M, "items": number(-MAX_ANGLE, MAX_ANGLE, "Angle [rad].")}
 _CONSTRAINT = {
     "type": "object",
     "additionalProperties": False,
@@ -52,18 +81,32 @@ _CONSTRAINT = {
             "description": "dock only: world pose of the fixture. Default: where frame_a is "
             "when the constraint activates.",
             "properties": {
-                "xyz": {**_VECTOR3, "description": "Position [m]."},
-                "rpy": {**_VECTOR3, "description": "Roll, pitch, yaw [rad]. Default: [0, 0, 0]."},
+                "xyz": {**_VECTOR3_M, "description": "Position [m], each within ±100."},
+                "rpy": {
+                    **_VECTOR3_RAD,
+                    "description": "Roll, pitch, yaw [rad], each within ±10. Default: [0, 0, 0].",
+                },
             },
         },
     },
 }
-_JOINT_VALUES = {
-    "oneOf": [
-        {"type": "array", "items": _NUMBER},
-        {"type": "object", "additionalProperties": _NUMBER},
-    ],
-}
+
+
+def _joint_values(item: dict[str, Any], description: str) -> dict[str, Any]:
+    """A value per joint: a list in model order, or a mapping {joint name: value}."""
+    return {
+        "oneOf": [
+            {"type": "array", "items": item},
+            {"type": "object", "additionalProperties": item},
+        ],
+        "description": description,
+    }
+
+
+def _time(description: str, *, positive: bool = False) -> dict[str, Any]:
+    """A time in [0, MAX_TIME] s, or (0, MAX_TIME] s if ``positive``."""
+    return number(0.0, MAX_TIME, description, exclusive_low=positive)
+
 
 #: JSON schema of a scenario file. Each key's ``description`` gives its unit and default.
 SCHEMA: dict[str, Any] = {
@@ -77,69 +120,50 @@ SCHEMA: dict[str, Any] = {
             "description": "Name of a file in robots/, a URDF path (relative to the scenario "
             "file) or an example-robot-data name.",
         },
-        "drives": {
-            "type": "object",
-            "description": "Gear ratio [-] and rotor inertia [kg m^2] per joint name; "
-            "armature = gear_ratio^2 * rotor_inertia. Default: none.",
-            "additionalProperties": {
-                "type": "object",
-                "additionalProperties": False,
-                "properties": {
-                    "gear_ratio": {
-                        "type": "number",
-                        "exclusiveMinimum": 0,
-                        "description": "Motor angle per joint angle [-]. Default: 1.",
-                    },
-                    "rotor_inertia": {
-                        "type": "number",
-                        "minimum": 0,
-                        "description": "Rotor inertia, motor side [kg m²]. Default: 0.",
-                    },
-                },
-            },
-        },
+        "drives": DRIVES_SCHEMA,
         "initial": {
             "type": "object",
             "additionalProperties": False,
             "required": ["q"],
             "description": "Initial state.",
             "properties": {
-                "q": {
-                    **_JOINT_VALUES,
-                    "description": "Joint positions [rad or m]: a list in model order, or "
+                "q": _joint_values(
+                    number(-MAX_POSITION, MAX_POSITION, "Joint position [rad or m]."),
+                    "Joint positions [rad or m], each within ±1000: a list in model order, or "
                     "{joint_name: value} with 0 for joints not named.",
-                },
-                "v": {
-                    **_JOINT_VALUES,
-                    "description": "Joint velocities [rad/s or m/s], same forms. Default: 0.",
-                },
+                ),
+                "v": _joint_values(
+                    number(-MAX_RATE, MAX_RATE, "Joint rate [rad/s or m/s]."),
+                    "Joint velocities [rad/s or m/s], each within ±1000, same forms. Default: 0.",
+                ),
             },
         },
-        "duration": {
-            "type": "number",
-            "exclusiveMinimum": 0,
-            "description": "Simulated time [s], > 0.",
-        },
+        "duration": _time("Simulated time [s], > 0 and at most 3600.", positive=True),
         "integrator": {
             "type": "object",
             "additionalProperties": False,
             "description": "Time integration. Default: {method: rk4, dt: 1.0e-4}.",
             "properties": {
                 "method": {"enum": sorted(INTEGRATORS), "description": "Integrator name."},
-                "dt": {
+                "dt": _time(
+                    "Step of rk4 / euler [s], <= duration. Default: 1.0e-4.", positive=True
+                ),
+                "rtol": number(
+                    MIN_RTOL, 1.0, "dop853 relative tolerance [-], 1e-13 to 1. Default: 1.0e-8."
+                ),
+                "atol": number(
+                    MIN_ATOL,
+                    1.0,
+                    "dop853 absolute tolerance [state units], 1e-15 to 1. Default: 1.0e-10.",
+                ),
+                "max_steps": {
                     "type": "number",
-                    "exclusiveMinimum": 0,
-                    "description": "Step of rk4 / euler [s]. Default: 1.0e-4.",
-                },
-                "rtol": {
-                    "type": "number",
-                    "exclusiveMinimum": 0,
-                    "description": "dop853 relative tolerance [-]. Default: 1.0e-8.",
-                },
-                "atol": {
-                    "type": "number",
-                    "exclusiveMinimum": 0,
-                    "description": "dop853 absolute tolerance [state units]. Default: 1.0e-10.",
+                    "multipleOf": 1,
+                    "minimum": 1,
+                    "maximum": MAX_STEPS_LIMIT,
+                    "description": "Most steps: rk4 / euler refuse a run of more than this "
+                    "(duration / dt) up front, dop853 stops when the steps between two events "
+                    "pass it. Default: 1000000.",
                 },
             },
         },
@@ -162,40 +186,47 @@ SCHEMA: dict[str, Any] = {
             "additionalProperties": False,
             "description": "Emergency stop. Default: none (no drives, no brakes).",
             "properties": {
-                "t": {"type": "number", "minimum": 0, "description": "Signal time [s]."},
+                "t": _time("Signal time [s]."),
                 "category": {"enum": [0, 1], "description": "Stop category. Default: 0."},
-                "ramp_time": {
-                    "type": "number",
-                    "exclusiveMinimum": 0,
-                    "description": "Category 1: time to ramp the rates to zero [s].",
-                },
+                "ramp_time": _time(
+                    "Category 1: time to ramp the rates to zero [s].", positive=True
+                ),
                 "torque_limit": {
                     "oneOf": [
-                        {"type": "number", "exclusiveMinimum": 0},
-                        {"type": "array", "items": _NUMBER},
-                        {"type": "object", "additionalProperties": _NUMBER},
+                        number(0.0, MAX_TORQUE, "Torque limit [N m].", exclusive_low=True),
+                        {
+                            "type": "array",
+                            "items": number(
+                                0.0, MAX_TORQUE, "Torque limit [N m].", exclusive_low=True
+                            ),
+                        },
+                        {
+                            "type": "object",
+                            "additionalProperties": number(
+                                0.0, MAX_TORQUE, "[N m]", exclusive_low=True
+                            ),
+                        },
                     ],
-                    "description": "Category 1: drive torque limit, joint side [N m]: one "
-                    "number for all joints, a list, or {joint: value}.",
+                    "description": "Category 1: drive torque limit, joint side [N m], > 0 and "
+                    "at most 1e6: one number for all joints, a list, or {joint: value}.",
                 },
-                "time_limit": {
-                    "type": "number",
-                    "exclusiveMinimum": 0,
-                    "description": "Category 1: latest brake signal after t [s]. Default: "
-                    "ramp_time.",
-                },
-                "gain": {
-                    "type": "number",
-                    "exclusiveMinimum": 0,
-                    "description": "Category 1: velocity feedback gain [1/s]. Default: 50.",
-                },
-                "rest_speed": {
-                    "type": "number",
-                    "exclusiveMinimum": 0,
-                    "description": "A joint has stopped once its speed stays below this "
-                    "[rad/s]; the stopping time runs from the signal until then. Default: "
-                    "0.001.",
-                },
+                "time_limit": _time(
+                    "Category 1: latest brake signal after t [s]. Default: ramp_time.",
+                    positive=True,
+                ),
+                "gain": number(
+                    0.0,
+                    MAX_GAIN,
+                    "Category 1: velocity feedback gain [1/s], at most 1e4. Default: 50.",
+                    exclusive_low=True,
+                ),
+                "rest_speed": number(
+                    0.0,
+                    MAX_RATE,
+                    "A joint has stopped once its speed stays below this [rad/s]; the stopping "
+                    "time runs from the signal until then. Default: 0.001.",
+                    exclusive_low=True,
+                ),
             },
         },
         "brakes": {
@@ -209,16 +240,20 @@ SCHEMA: dict[str, Any] = {
                         "type": "boolean",
                         "description": "Infinite torque: lock at engagement. Default: false.",
                     },
-                    "delay": {"type": "number", "description": "Engagement delay [s], >= 0."},
-                    "ramp": {"type": "number", "description": "Normal-force rise time [s]."},
-                    "sliding_torque": {
-                        "type": "number",
-                        "description": "Kinetic torque, motor side [N m], > 0.",
-                    },
-                    "static_torque": {
-                        "type": "number",
-                        "description": "Holding torque, motor side [N m] >= sliding.",
-                    },
+                    "delay": _time("Engagement delay [s], >= 0."),
+                    "ramp": _time("Normal-force rise time [s]."),
+                    "sliding_torque": number(
+                        0.0,
+                        MAX_TORQUE,
+                        "Kinetic torque, motor side [N m], > 0 and at most 1e6.",
+                        exclusive_low=True,
+                    ),
+                    "static_torque": number(
+                        0.0,
+                        MAX_TORQUE,
+                        "Holding torque, motor side [N m] >= sliding, at most 1e6.",
+                        exclusive_low=True,
+                    ),
                 },
             },
         },
@@ -233,8 +268,8 @@ SCHEMA: dict[str, Any] = {
             "description": "Baumgarte gains of the frame constraints. Default: {alpha: 10, beta: "
             "10}.",
             "properties": {
-                "alpha": {"type": "number", "minimum": 0, "description": "Velocity gain [1/s]."},
-                "beta": {"type": "number", "minimum": 0, "description": "Position gain [1/s]."},
+                "alpha": number(0.0, MAX_BAUMGARTE, "Velocity gain [1/s], at most 1e3."),
+                "beta": number(0.0, MAX_BAUMGARTE, "Position gain [1/s], at most 1e3."),
             },
         },
         "events": {
@@ -246,7 +281,7 @@ SCHEMA: dict[str, Any] = {
                 "additionalProperties": False,
                 "required": ["t"],
                 "properties": {
-                    "t": {"type": "number", "description": "Event time [s], in [0, duration]."},
+                    "t": _time("Event time [s], in [0, duration]."),
                     "lock": {
                         "type": "array",
                         "items": {"type": "string"},
@@ -286,6 +321,13 @@ class Scenario:
         integrator: Integrator object (RK4, SemiImplicitEuler or DOP853).
         transition: Transition rule name.
         events: Lock events in time order.
+        brakes: Brakes, acting after the stop signal.
+        stop: The emergency stop, if any.
+        tool_frame: Frame followed by the stopping report.
+        assumptions: Stated assumptions, quoted by reports.
+        constraints: Frame constraints active from t = 0.
+        baumgarte: Baumgarte gains (alpha, beta) [1/s].
+        constraint_keys: Key in the file of each frame constraint, by name (for messages).
     """
 
     source: str
@@ -304,6 +346,7 @@ class Scenario:
     assumptions: tuple[str, ...] = ()
     constraints: tuple[FrameConstraint, ...] = ()
     baumgarte: tuple[float, float] = DEFAULT_BAUMGARTE
+    constraint_keys: Mapping[str, str] = field(default_factory=dict)
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -372,18 +415,8 @@ def list_scenarios(folder: str | Path = SCENARIOS_DIR) -> list[ScenarioEntry]:
 
 
 def _read_yaml(path: Path) -> Any:
-    """The parsed YAML of a scenario file; errors name the file."""
-    source = str(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ScenarioError(source, "", f"cannot read the file ({exc.strerror})") from exc
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise ScenarioError(source, "", f"not valid YAML{where}") from exc
+    """The parsed YAML of a scenario file, read within :mod:`vtm_pin.inputs`' limits."""
+    return read_yaml(path, ScenarioError)
 
 
 def build_scenario(
@@ -404,8 +437,6 @@ def build_scenario(
         raise ScenarioError(source, "", "a scenario must be a mapping of keys to values")
     _check_schema(raw, source)
     duration = float(raw["duration"])
-    if not math.isfinite(duration):
-        raise ScenarioError(source, "duration", f"{duration} is not a finite number of seconds")
 
     drives = {
         joint: Drive(
@@ -418,7 +449,9 @@ def build_scenario(
         robot = load_robot(raw["robot"], drives=drives, base_dir=base_dir)
     except JointNotFound as exc:
         raise ScenarioError(
-            source, f"drives.{exc.name}", f"unknown joint; the joints are: {', '.join(exc.joints)}"
+            source,
+            f"drives.{excerpt(exc.name)}",
+            f"unknown joint; the joints are: {', '.join(exc.joints)}",
         ) from exc
     except VtmError as exc:
         raise ScenarioError(source, "robot", str(exc)) from exc
@@ -429,7 +462,7 @@ def build_scenario(
 
     integrator = build_integrator(raw.get("integrator", {}), duration, source)
 
-    names: set[str] = set()
+    names: dict[str, str] = {}
     constraints = tuple(
         _constraint(robot, spec, source, f"constraints[{i}]", names)
         for i, spec in enumerate(raw.get("constraints", []))
@@ -475,7 +508,9 @@ def build_scenario(
     tool_frame = raw.get("tool_frame", robot.tool_frame)
     if not robot.model.existFrame(tool_frame):
         frames = ", ".join(f.name for f in robot.model.frames)
-        raise ScenarioError(source, "tool_frame", f"no frame '{tool_frame}'; frames: {frames}")
+        raise ScenarioError(
+            source, "tool_frame", f"no frame '{excerpt(tool_frame)}'; frames: {frames}"
+        )
 
     return Scenario(
         source=source,
@@ -494,46 +529,63 @@ def build_scenario(
         stop=stop,
         tool_frame=tool_frame,
         assumptions=tuple(raw.get("assumptions", ())),
+        constraint_keys=names,
     )
 
 
 def build_integrator(spec: Mapping[str, Any], duration: float, source: str = "") -> Integrator:
     """The integrator a scenario's ``integrator`` mapping asks for (defaults: rk4, 1e-4 s).
 
+    Args:
+        spec: The ``integrator`` mapping: method, dt or rtol / atol, max_steps.
+        duration: Simulated time [s].
+        source: File name used in messages.
+
     Raises:
-        ScenarioError: A key that does not apply to the method, or a step longer than the run.
+        ScenarioError: A value out of range, a key that does not apply to the method, a step
+            longer than the run, or a fixed-step run of more than ``max_steps`` steps.
     """
+    check_schema(spec, SCHEMA["properties"]["integrator"], source, ScenarioError, "integrator")
     method = spec.get("method", "rk4")
-    if method in FIXED_STEP:
-        wrong = sorted({"rtol", "atol"} & set(spec))
-        if wrong:
+    max_steps = int(spec.get("max_steps", DEFAULT_MAX_STEPS))
+    if method not in FIXED_STEP:
+        if "dt" in spec:
             raise ScenarioError(
-                source, f"integrator.{wrong[0]}", f"applies to dop853 only, not to {method}"
+                source, "integrator.dt", f"{method} chooses its own steps: give rtol / atol instead"
             )
-        dt = float(spec.get("dt", DEFAULT_DT))
-        if not math.isfinite(dt) or dt > duration:
-            raise ScenarioError(
-                source,
-                "integrator.dt",
-                f"{dt} must be a finite step in (0, duration = {duration}] s",
-            )
-        fixed: Integrator = INTEGRATORS[method](dt=dt)
-        return fixed
-    if "dt" in spec:
+        rtol, atol = float(spec.get("rtol", 1e-8)), float(spec.get("atol", 1e-10))
+        return DOP853(rtol=rtol, atol=atol, max_steps=max_steps)
+    wrong = sorted({"rtol", "atol"} & set(spec))
+    if wrong:
         raise ScenarioError(
-            source, "integrator.dt", f"{method} chooses its own steps: give rtol / atol instead"
+            source, f"integrator.{wrong[0]}", f"applies to dop853 only, not to {method}"
         )
-    return DOP853(rtol=float(spec.get("rtol", 1e-8)), atol=float(spec.get("atol", 1e-10)))
+    dt = float(spec.get("dt", DEFAULT_DT))
+    if dt > duration:
+        raise ScenarioError(
+            source, "integrator.dt", f"{dt} must be a finite step in (0, duration = {duration}] s"
+        )
+    steps = duration / dt
+    if steps > max_steps * (1.0 + 1e-9):
+        raise ScenarioError(
+            source,
+            "integrator.dt",
+            f"{method} with dt = {dt:g} s would take {steps_text(steps)} steps for "
+            f"{duration:g} s; the limit is {max_steps}: set integrator.max_steps, or a larger dt",
+        )
+    fixed: Integrator = INTEGRATORS[method](dt=dt, max_steps=max_steps)
+    return fixed
 
 
 def _constraint(
-    robot: Robot, spec: Mapping[str, Any], source: str, key: str, names: set[str]
+    robot: Robot, spec: Mapping[str, Any], source: str, key: str, names: dict[str, str]
 ) -> FrameConstraint:
+    """The frame constraint of ``spec``; ``names`` maps the names taken to their keys."""
     kind = spec["type"]
     name = spec.get("name", f"{kind}{len(names)}")
     if name in names:
-        raise ScenarioError(source, f"{key}.name", f"'{name}' is used twice")
-    names.add(name)
+        raise ScenarioError(source, f"{key}.name", f"'{excerpt(name)}' is used twice")
+    names[name] = f"{key}.target" if "target" in spec else key
     if kind == "loop" and "frame_b" not in spec:
         raise ScenarioError(source, key, "a loop closure needs frame_b")
     if kind == "dock" and "frame_b" in spec:
@@ -565,7 +617,7 @@ def _constraint(
 def _brakes(robot: Robot, raw: Mapping[str, Any], source: str) -> tuple[Brake, ...]:
     brakes = []
     for joint, spec in raw.items():
-        key = f"brakes.{joint}"
+        key = f"brakes.{excerpt(joint)}"
         _check_joint(robot, joint, source, key)
         ideal = bool(spec.get("ideal", False))
         torques = {"sliding_torque", "static_torque"} & set(spec)
@@ -628,27 +680,43 @@ def run_scenario(
 
     ``progress`` is called with the simulated time [s] as the run advances (see
     :func:`vtm_pin.simulation.simulate`).
+
+    Raises:
+        ScenarioError: The integrator needed more than ``integrator.max_steps`` steps, a
+            frame constraint activated away from where it holds (named by its key), or frame
+            constraints turned out redundant in the configuration reached.
+        SimulationError: The simulation diverged.
     """
-    return simulate(
-        scenario.robot,
-        scenario.q0,
-        scenario.v0,
-        scenario.duration,
-        scenario.events,
-        scenario.integrator,
-        transition or scenario.transition,
-        scenario.brakes,
-        scenario.stop,
-        scenario.constraints,
-        scenario.baumgarte,
-        progress,
-    )
+    try:
+        return simulate(
+            scenario.robot,
+            scenario.q0,
+            scenario.v0,
+            scenario.duration,
+            scenario.events,
+            scenario.integrator,
+            transition or scenario.transition,
+            scenario.brakes,
+            scenario.stop,
+            scenario.constraints,
+            scenario.baumgarte,
+            progress,
+        )
+    except StepLimitError as exc:
+        raise ScenarioError(scenario.source, "integrator.max_steps", str(exc)) from exc
+    except ConstraintNotMet as exc:
+        key = scenario.constraint_keys.get(exc.name, "events")
+        raise ScenarioError(scenario.source, key, str(exc)) from exc
+    except ConstraintError as exc:  # redundant rows in the configuration reached
+        raise ScenarioError(scenario.source, "", str(exc)) from exc
 
 
 def _check_joint(robot: Robot, joint: str, source: str, key: str) -> None:
     if joint not in robot.joints:
         raise ScenarioError(
-            source, key, f"unknown joint '{joint}'; the joints are: {', '.join(robot.joints)}"
+            source,
+            key,
+            f"unknown joint '{excerpt(joint)}'; the joints are: {', '.join(robot.joints)}",
         )
 
 
@@ -673,47 +741,4 @@ def _joint_vector(robot: Robot, value: Any, source: str, key: str) -> np.ndarray
 
 
 def _check_schema(raw: Mapping[str, Any], source: str) -> None:
-    validator = jsonschema.Draft202012Validator(SCHEMA)
-    errors = sorted(validator.iter_errors(raw), key=lambda e: (len(e.path), list(map(str, e.path))))
-    if not errors:
-        return
-    error = errors[0]
-    path = list(error.absolute_path)
-    if error.validator == "additionalProperties":
-        schema = error.schema if isinstance(error.schema, Mapping) else {}
-        path.append(sorted(set(error.instance) - set(schema.get("properties", {})))[0])
-    raise ScenarioError(source, _key_path(path), _describe(error))
-
-
-def _key_path(path: Sequence[Any]) -> str:
-    out = ""
-    for part in path:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
-    return out
-
-
-def _describe(error: jsonschema.ValidationError) -> str:
-    schema = error.schema if isinstance(error.schema, Mapping) else {}
-    kind = error.validator
-    if kind == "additionalProperties":
-        allowed = ", ".join(sorted(schema.get("properties", {})))
-        return f"unknown key; allowed keys here: {allowed}"
-    if kind == "required":
-        return f"{error.message.replace('is a required property', 'is missing')}"
-    if kind == "enum":
-        allowed = ", ".join(str(x) for x in schema.get("enum", []))
-        return f"{error.instance!r} is not allowed; allowed values: {allowed}"
-    if kind in ("exclusiveMinimum", "minimum"):
-        op = ">" if kind == "exclusiveMinimum" else ">="
-        return f"{error.instance!r} must be {op} {error.validator_value}"
-    if kind == "type":
-        want = error.validator_value
-        hint = f" ({schema['description']})" if "description" in schema else ""
-        return f"{error.instance!r} is not of type {want}{hint}"
-    if kind == "oneOf":
-        return (
-            f"{error.instance!r} must be a list of numbers or a mapping of joint names to numbers"
-        )
-    if kind == "minItems":
-        return "must list at least one joint"
-    return error.message
+    check_schema(raw, SCHEMA, source, ScenarioError)

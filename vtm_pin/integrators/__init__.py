@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .base import Integrator, Rhs, Segment, StateEvent
+from .base import DEFAULT_MAX_STEPS, Integrator, Rhs, Segment, StateEvent
 from .dop853 import DOP853
 from .euler import SemiImplicitEuler
 from .rk4 import RK4
@@ -14,6 +14,7 @@ INTEGRATORS = {"dop853": DOP853, "euler": SemiImplicitEuler, "rk4": RK4}
 FIXED_STEP = ("euler", "rk4")
 
 __all__ = [
+    "DEFAULT_MAX_STEPS",
     "DOP853",
     "FIXED_STEP",
     "INTEGRATORS",

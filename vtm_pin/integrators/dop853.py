@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as coef
 
-from .base import Rhs, Segment, StateEvent
+from ..exceptions import SimulationError, StepLimitError
+from .base import DEFAULT_MAX_STEPS, Rhs, Segment, StateEvent
 from .fixed_step import locate
 
 _SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0
@@ -37,12 +38,15 @@ class DOP853:
         atol: Absolute tolerance [rad, rad/s, J, N m s: state units].
         max_step: Largest step [s].
         event_tol: Absolute tolerance of state-event times [s].
+        max_steps: Most steps (accepted and rejected) of one interval: past it the
+            integration stops with :class:`~vtm_pin.exceptions.StepLimitError`.
     """
 
     rtol: float = 1e-8
     atol: float = 1e-10
     max_step: float = math.inf
     event_tol: float = 1e-14
+    max_steps: int = DEFAULT_MAX_STEPS
     name: str = "dop853"
 
     def integrate(
@@ -54,7 +58,13 @@ class DOP853:
         events: Sequence[StateEvent] = (),
         n_q: int = 0,
     ) -> Segment:
-        """Integrate y' = f(t, y) from ``t0`` to ``t1`` [s], stopping at the first state event."""
+        """Integrate y' = f(t, y) from ``t0`` to ``t1`` [s], stopping at the first state event.
+
+        Raises:
+            StepLimitError: More than ``max_steps`` steps were needed.
+            SimulationError: The step fell below the round-off of t (the derivatives are not
+                finite, or the tolerances cannot be met).
+        """
         if y0.size == 0 or t1 <= t0:
             return Segment(
                 t=np.array([t0, max(t0, t1)]), y=np.zeros((2, y0.size)) + y0, rhs_evals=0
@@ -69,15 +79,19 @@ class DOP853:
         evals += extra
         g_prev = [e.g(t, y) for e in events]
         rejected = False
+        steps = 0
         while t < t1:
+            steps += 1
+            self._check_steps(steps, t0, t, t1)
             h = min(h, self.max_step)
             last = t + h >= t1 - 1e-14 * max(1.0, abs(t1))
             if last:
                 h = t1 - t
             y_new, f_new, err = self._step(f, t, y, fy, h, K)
             evals += _S
-            if err > 1.0:
-                h *= max(_MIN_FACTOR, _SAFETY * err**_EXPONENT)
+            if not err <= 1.0:  # also a NaN error: a step through non-finite derivatives
+                h *= max(_MIN_FACTOR, _SAFETY * err**_EXPONENT) if math.isfinite(err) else 0.2
+                self._check_round_off(t, h, fy)
                 rejected = True
                 continue
             t_new = t1 if last else t + h
@@ -101,6 +115,30 @@ class DOP853:
             ys.append(y)
             h *= factor
         return Segment(np.array(ts), np.array(ys), evals)
+
+    def _check_steps(self, steps: int, t0: float, t: float, t1: float) -> None:
+        """Stop an interval that needs more than ``max_steps`` steps."""
+        if steps > self.max_steps:
+            raise StepLimitError(
+                f"dop853 took {self.max_steps} steps from t = {t0:g} s and reached only "
+                f"t = {t:.6g} s of {t1:g} s; the limit is {self.max_steps}: set "
+                "integrator.max_steps, or loosen rtol / atol",
+                steps,
+                self.max_steps,
+            )
+
+    def _check_round_off(self, t: float, h: float, fy: np.ndarray) -> None:
+        """Stop when a rejected step shrinks below the round-off of t (as scipy does)."""
+        if h < 10.0 * abs(np.nextafter(t, math.inf) - t):
+            reason = (
+                "the derivatives are not finite there"
+                if not np.all(np.isfinite(fy))
+                else f"rtol = {self.rtol:g}, atol = {self.atol:g} cannot be met there"
+            )
+            raise SimulationError(
+                f"dop853: the step fell to {h:.3g} s at t = {t:.6g} s, below the round-off of "
+                f"t; {reason} (a singular or extremely stiff motion)"
+            )
 
     def _scale(self, y: np.ndarray, y_new: np.ndarray) -> np.ndarray:
         return self.atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new))

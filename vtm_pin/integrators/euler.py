@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Rhs, Segment, StateEvent
+from .base import DEFAULT_MAX_STEPS, Rhs, Segment, StateEvent
 from .fixed_step import integrate_fixed
 
 
@@ -23,10 +23,12 @@ class SemiImplicitEuler:
     Attributes:
         dt: Step size [s], shortened before each event as for RK4.
         event_tol: Absolute tolerance of state-event times [s].
+        max_steps: Most steps of one interval; a longer one is refused before it starts.
     """
 
     dt: float
     event_tol: float = 1e-14
+    max_steps: int = DEFAULT_MAX_STEPS
     name: str = "euler"
 
     def integrate(
@@ -45,4 +47,6 @@ class SemiImplicitEuler:
             out[:n_q] = y[:n_q] + h * out[n_q : 2 * n_q]
             return out
 
-        return integrate_fixed(step, self.dt, self.event_tol, f, t0, y0, t1, events, 1)
+        return integrate_fixed(
+            step, self.dt, self.event_tol, f, t0, y0, t1, events, 1, self.max_steps, self.name
+        )

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Rhs, Segment, StateEvent
+from .base import DEFAULT_MAX_STEPS, Rhs, Segment, StateEvent
 from .fixed_step import integrate_fixed
 
 
@@ -19,10 +19,12 @@ class RK4:
         dt: Step size [s]. The last step of an interval is shortened so that it ends exactly on
             the interval's end (the next time event); the grid restarts at every event.
         event_tol: Absolute tolerance of state-event times [s].
+        max_steps: Most steps of one interval; a longer one is refused before it starts.
     """
 
     dt: float
     event_tol: float = 1e-14
+    max_steps: int = DEFAULT_MAX_STEPS
     name: str = "rk4"
 
     def integrate(
@@ -35,7 +37,9 @@ class RK4:
         n_q: int = 0,
     ) -> Segment:
         """Integrate y' = f(t, y) from ``t0`` to ``t1`` [s], stopping at the first state event."""
-        return integrate_fixed(_step, self.dt, self.event_tol, f, t0, y0, t1, events, 4)
+        return integrate_fixed(
+            _step, self.dt, self.event_tol, f, t0, y0, t1, events, 4, self.max_steps, self.name
+        )
 
 
 def _step(f: Rhs, t: float, y: np.ndarray, k1: np.ndarray, h: float) -> np.ndarray:

@@ -1,0 +1,27 @@
+"""The ``vtm-pin`` command and ``python -m vtm_pin``: the CLI, with Ctrl-C caught from the start.
+
+The CLI imports Pinocchio, SciPy and Matplotlib, which takes a second or two; this module
+imports nothing heavy itself, so that Ctrl-C during those imports exits with status 130 and
+one line, as it does during a run.
+"""
+
+from __future__ import annotations
+
+import sys
+
+#: Exit status after Ctrl-C (as :data:`vtm_pin.cli.EXIT_INTERRUPTED`).
+EXIT_INTERRUPTED = 130
+
+
+def entry_point() -> int:
+    """Run ``vtm-pin`` on ``sys.argv``; returns the exit status."""
+    try:
+        from .cli import main
+    except KeyboardInterrupt:
+        print("vtm-pin: interrupted; nothing written", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return main()
+
+
+if __name__ == "__main__":
+    sys.exit(entry_point())
