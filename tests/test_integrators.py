@@ -103,3 +103,33 @@ def test_long_horizon_energy_drift_per_method():
     assert drift.max() < 1e-4
     finals = [energy_drift(SemiImplicitEuler(dt), 100.0)[1][-1] for dt in (5e-4, 2.5e-4)]
     assert 1.5 < finals[0] / finals[1] < 3.0  # first order in dt
+
+
+@pytest.mark.parametrize("integrator", [RK4(2.0), DOP853(1e-10, 1e-12)], ids=lambda i: i.name)
+@pytest.mark.parametrize("direction", [-1, 1])
+def test_event_from_exactly_zero_fires_when_the_function_comes_back(integrator, direction):
+    """g = y0 with y0' = d (1 - 2t), y0(0) = 0: g leaves zero for the side before the
+    crossing and returns through zero at t = 1 s, inside one step. It must fire there
+    (a joint starting to slide from rest, stopped again by its rising friction)."""
+    from vtm_pin.integrators import StateEvent
+
+    d = -direction  # the side g leaves for first
+
+    def f(t, y):
+        return np.array([d * (1.0 - 2.0 * t)])
+
+    event = StateEvent(lambda t, y: float(y[0]), direction)
+    segment = integrator.integrate(f, 0.0, np.zeros(1), 2.0, [event])
+    assert segment.event == 0
+    # [s]: the root of t - t^2 on the method's own solution (exact for both: a quadratic).
+    assert segment.t[-1] == pytest.approx(1.0, abs=1e-12)
+
+
+def test_event_from_exactly_zero_leaving_to_the_far_side_fires_at_the_step_end():
+    """No point on the before side: the handler's state disagrees with the motion at once,
+    so the event is taken at the end of the step (never at a zero-length step)."""
+    from vtm_pin.integrators import StateEvent
+
+    event = StateEvent(lambda t, y: float(y[0]), -1)
+    segment = RK4(0.5).integrate(lambda t, y: np.array([-1.0]), 0.0, np.zeros(1), 2.0, [event])
+    assert segment.event == 0 and segment.t[-1] == 0.5

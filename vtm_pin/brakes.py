@@ -3,9 +3,9 @@
 A brake is ``free`` until it engages (stop signal + delay). It then ``slides`` (``forward`` for
 v > 0, ``backward`` for v < 0) with the kinetic torque -tau_slide sign(v), which only ever
 opposes the motion. A braked joint at rest, whether it engaged at rest, slid to rest or is
-stuck, goes through one decision (Modelica's start-forward / start-backward conditions, see
-:func:`mode_at_rest`): it is ``stuck`` (a joint lock) while the torque needed to hold it is
-within the static torque, else it starts sliding in the direction the load drives it. A stuck
+stuck, goes through one decision (Modelica's start-forward / start-backward conditions): it
+is ``stuck`` (a joint lock) while the torque needed to hold it is within the static torque,
+else it starts sliding in the direction the load drives it (:func:`mode_of_load`). A stuck
 joint whose holding torque exceeds the static torque ``slips`` back to sliding. The normal
 force, and with it both torques, may rise linearly over ``ramp`` seconds after engagement. A
 brake with infinite torque is ideal: it locks its joint at engagement with the paper's
@@ -120,18 +120,10 @@ def mode_of_motion(v: float) -> BrakeMode | None:
     return None
 
 
-def mode_at_rest(hold: float, limit: float) -> BrakeMode:
-    """The stick/slip decision for a braked joint at rest (Modelica's start conditions).
+def mode_of_load(hold: float) -> BrakeMode:
+    """The direction a joint at rest starts sliding in when released: that of its load.
 
     Args:
-        hold: Torque the brake must exert to keep the joint at rest [N m] (the lock's
-            multiplier, positive along the joint axis).
-        limit: Static torque limit at this instant, joint side [N m], >= 0.
-
-    Returns:
-        ``STUCK`` if |hold| <= limit; else ``BACKWARD`` if the brake would have to push
-        forward (the load drives the joint backward), ``FORWARD`` otherwise.
+        hold: Torque needed to hold the joint at rest [N m]; the load acts against it.
     """
-    if abs(hold) <= limit:
-        return BrakeMode.STUCK
     return BrakeMode.BACKWARD if hold > 0.0 else BrakeMode.FORWARD

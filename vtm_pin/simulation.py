@@ -10,13 +10,14 @@ transition rule with J1 the joints already locked and J2 the ones locking now.
 from __future__ import annotations
 
 import heapq
+import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from .brakes import Brake, BrakeMode, mode_at_rest, mode_of_motion
+from .brakes import Brake, BrakeMode, mode_of_load, mode_of_motion
 from .constraints import check_independent, lock_jacobian
 from .dynamics import compute_energy, compute_M
 from .exceptions import SimulationError
@@ -201,6 +202,7 @@ class _Hybrid:
         self.data = robot.model.createData()
         self.events: list[EventRecord] = []
         self.brake_events: list[BrakeEvent] = []
+        self._v_event: dict[int, float] = {}  # rates of the resting joints before zeroing
         self.phase = self.new_phase()
 
     def new_phase(self, locked: Sequence[int] | None = None) -> Phase:
@@ -296,113 +298,145 @@ class _Hybrid:
     def settle(self, t: float, due: Sequence[int] = ()) -> None:
         """Bring every engaged brake's mode in line with the state at ``t``; build the phase.
 
-        One rule for every braked joint (Modelica's ``Brake``): a joint at rest (engaged at
-        rest, slid to rest, or past zero by round-off) sticks if its holding torque is within
-        the static torque, else starts sliding in the direction of the load; a sliding joint
-        whose rate has the other sign (after a jump) slides the other way; a stuck joint
-        whose holding torque exceeds the static torque slips. Decisions are taken one joint
-        at a time, and re-examined after every lock or slip, since each changes the loads.
+        One rule for every braked joint (Modelica's ``Brake``), applied to all of them at
+        once, as an active set for Coulomb friction:
+
+        1. A sliding joint whose rate a jump reversed slides the other way.
+        2. Every joint at rest (engaged at rest, slid to rest, or stuck) is held; while some
+           holding torque exceeds its static limit, the worst-loaded joint (largest
+           |hold| / limit) is released to slide in the direction of its load, and the
+           others are held again. Those still held stick, in one consistent lock.
+        3. A released joint must then accelerate the way it slides, now that the others
+           slide too; if it would not, it slides the other way, or, if neither direction
+           is consistent, its static friction holds it and it sticks.
+
+        A released joint stays released at this instant, so the decisions end.
 
         Args:
             t: Time [s].
-            due: Joints whose state event fired now: decided even at the exact limit.
-
-        Raises:
-            SimulationError: The decisions do not settle (stick and slip alternate).
+            due: Joints whose state event fired now (reached v = 0, or hit the static
+                limit): a stuck one among them is released even within round-off of it.
         """
-        decided: set[int] = set()
-        pending = list(due)
-        for _ in range(_MAX_DECISIONS * (self.robot.nv + 1)):
-            phase = self.new_phase()
-            i, action = self._next_decision(t, phase, pending, decided)
-            if action is None:
-                self.phase = phase
+        self._follow_reversals(t)
+        resting = self._resting()
+        if resting:
+            forced = {i for i in due if i in self.locked}  # at the static limit now
+            released = self._hold_or_release(t, resting, forced)
+            self._check_released(t, released)
+        self.phase = self.new_phase()
+
+    def _hold_or_release(self, t: float, resting: list[int], forced: set[int]) -> list[int]:
+        """Step 2 of :meth:`settle`: release the worst-loaded joints, lock the rest."""
+        limits = {i: self.brakes[i].static(t - self.engaged[i]) for i in resting}
+        released = []
+        while True:
+            trial = self.new_phase(sorted({*self.locked, *resting}))
+            hold = trial.holding_torque(t, trial.pack(self.q, self.v, self.extras))
+            i = _worst_loaded(resting, hold, limits, forced)
+            if i is None:
+                break
+            self._release(t, i, float(hold[i]), limits[i])
+            resting.remove(i)
+            forced.discard(i)
+            released.append(i)
+        self._stick(t, [i for i in resting if i not in self.locked], hold, limits)
+        return released
+
+    def _check_released(self, t: float, released: list[int]) -> None:
+        """Step 3 of :meth:`settle`: flip or stick released joints that would not slide."""
+        for _ in range(2 * len(released)):
+            wrong = self._against_motion(t, released)
+            if wrong is None:
                 return
-            pending = [j for j in pending if j != i]
-            if action == "flip":
-                self.modes[i] = mode_of_motion(float(self.v[i])) or self.modes[i]
-                self.brake_events.append(
-                    BrakeEvent(t, self.robot.joints[i], "reverse", float(self.v[i]))
-                )
+            self.modes[wrong] = mode_of_motion(-self.modes[wrong].sign) or BrakeMode.FREE
+            if self._against_motion(t, [wrong]) is None:
+                name = self.robot.joints[wrong]
+                self.brake_events.append(BrakeEvent(t, name, "reverse", 0.0))
                 continue
-            changed = self.rest(t, i) if action == "rest" else self.slip(t, i, phase)
-            decided = {i} if changed else decided | {i}
-        raise SimulationError(
-            f"Brake decisions at t = {t} s do not settle: joints stick and slip in turn"
-        )
+            trial = self.new_phase([*self.locked, wrong])
+            hold = trial.holding_torque(t, trial.pack(self.q, self.v, self.extras))
+            limit = self.brakes[wrong].static(t - self.engaged[wrong])
+            self._stick(t, [wrong], hold, {wrong: limit})
 
-    def _next_decision(
-        self, t: float, phase: Phase, pending: Sequence[int], decided: set[int]
-    ) -> tuple[int, str | None]:
-        """The next joint whose brake mode disagrees with the state, and what to do."""
-        if pending:
-            return pending[0], "slip" if pending[0] in self.locked else "rest"
+    def _against_motion(self, t: float, joints: Sequence[int]) -> int | None:
+        """The first of ``joints`` (free, sliding from rest) accelerating against its mode."""
+        phase = self.new_phase()
+        k = phase.k
+        a = np.zeros(self.robot.nv)
+        a[phase.topology.free] = phase.rhs(t, phase.pack(self.q, self.v, self.extras))[k : 2 * k]
+        for i in joints:
+            if i not in self.locked and a[i] * self.modes[i].sign < 0.0:
+                return i
+        return None
+
+    def _stick(
+        self, t: float, joints: Sequence[int], hold: np.ndarray, limits: Mapping[int, float]
+    ) -> None:
+        """Joints at rest whose brakes hold them stick: one consistent lock."""
+        for i in joints:
+            name = self.robot.joints[i]
+            self.brake_events.append(
+                BrakeEvent(t, name, "stick", self._v_event[i], float(hold[i]), limits[i])
+            )
+            self.modes[i] = BrakeMode.STUCK
+        if joints:
+            self.lock(t, joints, "stick")
+
+    def _follow_reversals(self, t: float) -> None:
+        """Sliding joints whose rate has the other sign (after a jump) slide the other way."""
         for i in self.engaged:
+            mode, moving = self.modes[i], mode_of_motion(float(self.v[i]))
+            if i not in self.locked and moving is not None and mode is not moving:
+                if mode.sliding or mode is BrakeMode.FREE:
+                    self.modes[i] = moving
+                    self.brake_events.append(
+                        BrakeEvent(t, self.robot.joints[i], "reverse", float(self.v[i]))
+                    )
+
+    def _resting(self) -> list[int]:
+        """Braked joints at rest that need the stick/slip decision (their rates set to 0).
+
+        Stuck joints, and engaged joints at rest (|v| <= REST_RATE) that are free or
+        sliding; not ideal brakes, nor joints locked by a prescribed lock.
+        """
+        resting = []
+        self._v_event.clear()
+        for i in sorted(self.engaged):
             mode = self.modes[i]
-            if i in self.locked or i in decided or mode is BrakeMode.LOCKED:
+            if mode is BrakeMode.LOCKED or (i in self.locked and mode is not BrakeMode.STUCK):
                 continue
-            moving = mode_of_motion(float(self.v[i]))
-            if moving is None and (mode.sliding or mode is BrakeMode.FREE):
-                return i, "rest"
-            if moving is not None and mode is not moving:
-                return i, "flip"
-        stuck = [
-            i
-            for i in self.engaged
-            if self.modes[i] is BrakeMode.STUCK and i not in decided and i in self.locked
-        ]
-        if stuck:
-            hold = phase.holding_torque(t, phase.pack(self.q, self.v, self.extras))
-            for i in stuck:
-                if abs(hold[i]) > self.brakes[i].static(t - self.engaged[i]):
-                    return i, "slip"
-        return -1, None
+            at_rest = mode_of_motion(float(self.v[i])) is None
+            if mode is BrakeMode.STUCK or at_rest:
+                resting.append(i)
+                self._v_event[i] = float(self.v[i])
+                self.v[i] = 0.0
+        return resting
 
-    def rest(self, t: float, i: int) -> bool:
-        """Joint ``i`` is at rest while braked: stick if the brake can hold it, else slide.
-
-        Returns:
-            Whether the joint stuck (a lock: the topology changed).
-        """
-        brake = self.brakes[i]
-        v_event = float(self.v[i])
-        self.v[i] = 0.0
-        modes = list(self.modes)
-        self.modes[i] = BrakeMode.STUCK
-        trial = self.new_phase([*self.locked, i])
-        y = trial.pack(self.q, self.v, self.extras)
-        hold = float(trial.holding_torque(t, y)[i])
-        limit = brake.static(t - self.engaged[i])
+    def _release(self, t: float, i: int, hold: float, limit: float) -> None:
+        """Joint ``i`` cannot be held: it slides in the direction of its load."""
+        if i in self.locked:
+            kind = "slip"
+            self.locked = [j for j in self.locked if j != i]
+        else:
+            kind = "reverse" if self.modes[i].sliding else "start"
+        self.modes[i] = mode_of_load(hold)
         name = self.robot.joints[i]
-        mode = mode_at_rest(hold, limit)
-        if mode is BrakeMode.STUCK:
-            self.brake_events.append(BrakeEvent(t, name, "stick", v_event, hold, limit))
-            self.lock(t, [i], "stick")
-            return True
-        kind = "reverse" if modes[i].sliding else "start"
-        self.modes = modes
-        self.modes[i] = mode
-        self.brake_events.append(BrakeEvent(t, name, kind, v_event, hold, limit))
-        return False
-
-    def slip(self, t: float, i: int, phase: Phase) -> bool:
-        """Stuck joint ``i`` breaks loose: unlock it and slide in the direction of the load.
-
-        Returns:
-            True (the topology changed).
-        """
-        hold = float(phase.holding_torque(t, phase.pack(self.q, self.v, self.extras))[i])
-        limit = self.brakes[i].static(t - self.engaged[i])
-        self.locked = [j for j in self.locked if j != i]
-        self.modes[i] = BrakeMode.BACKWARD if hold > 0.0 else BrakeMode.FORWARD
-        self.brake_events.append(
-            BrakeEvent(t, self.robot.joints[i], "slip", float(self.v[i]), hold, limit)
-        )
-        return True
+        self.brake_events.append(BrakeEvent(t, name, kind, self._v_event[i], hold, limit))
 
 
-#: Brake decisions allowed per joint at one instant before the state machine gives up.
-_MAX_DECISIONS = 4
+def _worst_loaded(
+    resting: Sequence[int], hold: np.ndarray, limits: Mapping[int, float], forced: set[int]
+) -> int | None:
+    """The held joint to release first: a forced one, else the largest |hold| / limit > 1."""
+    if forced:
+        return min(forced)
+    worst, ratio = None, 1.0
+    for i in resting:
+        if abs(hold[i]) > limits[i]:
+            r = math.inf if limits[i] == 0.0 else abs(hold[i]) / limits[i]
+            if worst is None or r > ratio:
+                worst, ratio = i, r
+    return worst
 
 
 def simulate(
@@ -675,15 +709,29 @@ _ENERGY_SAMPLES = 9  # states per interval at which the energy is evaluated
 def _check_energy(
     h: _Hybrid, phase: Phase, y: np.ndarray, t: np.ndarray, integrator: Integrator
 ) -> None:
-    """Raise if an interval broke the energy balance: the step is too large for the dynamics.
+    """Raise if an interval started off its new constraints or broke the energy balance.
 
-    Between events T + V changes only by the brakes' and drives' work; a step far too large
-    makes it grow or collapse (or go non-finite) long before anything else is visibly wrong.
+    A frame constraint activated at the interval's start must hold there (the frames meet, a
+    docked frame is at its target): otherwise the error names it and the distance. Between
+    events T + V changes only by the brakes' and drives' work; a step far too large makes it
+    grow or collapse (or go non-finite) long before anything else is visibly wrong.
     """
-    if not np.all(np.isfinite(y)):
+    from .holonomic import check_activation  # here: this function is all that imports it
+
+    last = h.events[-1] if h.events else None
+    if last is not None and last.activate and last.t == t[0]:
+        q_start, _ = phase.topology.merge(y[0, : 2 * phase.k])
+        new = [f for f in h.frames if f.name in last.activate]
+        check_activation(new, h.robot.model, h.data, q_start, float(t[0]))
+    finite = np.all(np.isfinite(y), axis=1)
+    if not np.all(finite):
+        row = int(np.argmin(finite))
+        bad = np.flatnonzero(~np.isfinite(y[row, : 2 * phase.k])) % max(phase.k, 1)
+        names = dict.fromkeys(h.robot.joints[phase.topology.free[i]] for i in bad)
         raise SimulationError(
-            f"State became non-finite between t = {t[0]} s and {t[-1]} s with "
-            f"{_settings(integrator)}: the step is too large for these dynamics; reduce it"
+            f"The state of {', '.join(names) or 'the brakes'} became non-finite at "
+            f"t = {t[row]:.6g} s with {_settings(integrator)}: the step is too large for "
+            "these dynamics; reduce it"
         )
     if phase.k == 0 or not hasattr(integrator, "dt"):
         return  # nothing moves, or an error-controlled method that cannot blow up silently
@@ -723,7 +771,9 @@ def _settings(integrator: Integrator) -> str:
     dt = getattr(integrator, "dt", None)
     if dt is not None:
         return f"{integrator.name} dt = {dt:g} s"
-    return f"{integrator.name} rtol = {getattr(integrator, 'rtol', float('nan')):g}"
+    rtol = getattr(integrator, "rtol", float("nan"))
+    atol = getattr(integrator, "atol", float("nan"))
+    return f"{integrator.name} rtol = {rtol:g}, atol = {atol:g}"
 
 
 def _time_events(

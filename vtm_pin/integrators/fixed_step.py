@@ -13,7 +13,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import scipy.optimize
 
-from .base import Rhs, Segment, StateEvent
+from ..exceptions import StepLimitError
+from .base import DEFAULT_MAX_STEPS, Rhs, Segment, StateEvent, steps_text
 
 #: Relative slack when counting steps, so that t1 - t0 = k dt up to round-off gives k steps.
 _GRID_SLACK = 1e-9
@@ -32,12 +33,26 @@ def integrate_fixed(
     t1: float,
     events: Sequence[StateEvent],
     evals_per_step: int,
+    max_steps: int = DEFAULT_MAX_STEPS,
+    name: str = "fixed-step",
 ) -> Segment:
-    """Integrate with a fixed step ``dt`` from ``t0`` to exactly ``t1`` or the first event."""
+    """Integrate with a fixed step ``dt`` from ``t0`` to exactly ``t1`` or the first event.
+
+    Raises:
+        StepLimitError: The interval needs more than ``max_steps`` steps (refused up front).
+    """
     span = t1 - t0
     if y0.size == 0:  # everything locked: the state is frozen
         return Segment(t=np.array([t0, t1]), y=np.zeros((2, 0)), rhs_evals=0)
-    steps = max(math.ceil(span / dt - _GRID_SLACK), 0) if span > 0 else 0
+    needed = span / dt - _GRID_SLACK if span > 0 else 0.0
+    if needed > max_steps:
+        raise StepLimitError(
+            f"{name} with dt = {dt:g} s would take {steps_text(needed)} steps from t = {t0:g} s to "
+            f"{t1:g} s; the limit is {max_steps}: set integrator.max_steps, or a larger dt",
+            needed,
+            max_steps,
+        )
+    steps = max(math.ceil(needed), 1) if span > 0 else 0  # an interval shorter than dt: 1 step
     t = np.empty(steps + 1)
     y = np.empty((steps + 1, y0.size))
     t[0] = t0
@@ -97,13 +112,28 @@ def locate(
 
         g0 = event.g(tk, yk)
         g1 = phi(h)
-        if g1 == 0.0:
+        start = _departure(event, phi, h) if g0 == 0.0 else 0.0
+        if g1 == 0.0 or start == h:
             tau = h
         else:
-            tau = scipy.optimize.brentq(phi, 0.0, h, xtol=event_tol, rtol=1e-15)
+            tau = scipy.optimize.brentq(phi, start, h, xtol=event_tol, rtol=1e-15)
             while not event.crossed(g0, phi(tau)) and tau < h:
                 tau = min(h, tau + event_tol)
         if best is None or tau < best[0]:
             best = (tau, i)
     assert best is not None
     return best
+
+
+def _departure(event: StateEvent, phi: Callable[[float], float], h: float) -> float:
+    """A point where ``phi``, 0 at the start, is before the crossing; ``h`` if none is found.
+
+    Searched at h / 2, h / 4, ... down to 2^-60 h: a function that leaves zero with a
+    non-zero slope is on its side at some of them. If it left straight for the far side
+    (the handler's state disagrees with the motion), the event is taken at the step end.
+    """
+    for k in range(1, 61):
+        tau = h * 0.5**k
+        if event.before(phi(tau)):
+            return tau
+    return h
