@@ -17,8 +17,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vtm_pin.benchmark import format_transition_costs, measure_transition_costs
-from vtm_pin.plotting import plot_transition_costs
+from benchlib import format_transition_costs, measure_transition_costs, plot_transition_costs
 
 SIZES = [3, 6, 12, 25, 50, 100, 200]
 ROOT = Path(__file__).resolve().parent.parent

@@ -21,17 +21,17 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-
-import vtm_pin as vp
-from vtm_pin.benchmark import (
+from benchlib import (
     LADDERS,
     WorkPoint,
     compute_reference,
     format_work_precision,
     measure_work_precision,
+    plot_work_precision,
     time_to_accuracy,
 )
-from vtm_pin.plotting import plot_work_precision
+
+import vtm_pin as vp
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ["pendulum3r", "rx160l_paper_locks", "rx160l_estop_cat0"]

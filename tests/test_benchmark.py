@@ -1,9 +1,16 @@
+"""The benchmark library, benchmarks/benchlib.py (outside the package, so put on the path)."""
+
+import subprocess
+import sys
+
 import numpy as np
 import pytest
-from conftest import SCENARIOS
+from conftest import ROOT, SCENARIOS
 
 from vtm_pin import load_scenario
-from vtm_pin.benchmark import (
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from benchlib import (
     COST_KEYS,
     WorkPoint,
     compute_reference,
@@ -12,9 +19,10 @@ from vtm_pin.benchmark import (
     make_integrator,
     measure_transition_costs,
     measure_work_precision,
+    plot_transition_costs,
+    plot_work_precision,
     time_to_accuracy,
 )
-from vtm_pin.plotting import plot_transition_costs, plot_work_precision
 
 
 def test_time_to_accuracy_interpolates_log_log_and_prefers_cheaper_accurate_points():
@@ -59,3 +67,12 @@ def test_transition_costs_are_measured_for_every_key():
 def test_unknown_method_is_refused():
     with pytest.raises(ValueError, match="unknown method 'rk45'; allowed: dop853, euler, rk4"):
         make_integrator("rk45", 1e-3)
+
+
+def test_the_runtime_modules_do_not_import_benchmark_code():
+    code = (
+        "import sys, vtm_pin.cli, vtm_pin.plotting, vtm_pin.report, vtm_pin.drawing; "
+        "print(sorted(m for m in sys.modules if 'bench' in m))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -6,12 +6,10 @@ from matplotlib.figure import Figure
 from vtm_pin import SimulationError, load_scenario, run_scenario
 from vtm_pin.drawing import (
     compute_skeleton,
-    compute_tool_path,
     draw_robot,
     plot_poses,
     plot_snapshots,
 )
-from vtm_pin.stopping import compute_stopping_report
 
 #: Forward kinematics against closed-form geometry: round-off of a few products of sines [m].
 FK_TOL = 1e-12
@@ -45,15 +43,6 @@ def test_branches_end_at_their_farthest_frame():
     assert skeleton.ground.shape == (2, 2, 3)
     ends = {tuple(np.round(s[1], 9)) for s in skeleton.segments}
     assert tuple(np.round(skeleton.tool, 9)) in ends
-
-
-def test_tool_path_is_the_stopping_reports_path():
-    scenario = load_scenario(SCENARIOS / "ur5_estop_cat0.yaml")
-    result = run_scenario(scenario)
-    report = compute_stopping_report(scenario.robot, result, scenario.brakes)
-    start = int(np.searchsorted(result.t, report.signal_time))
-    path = compute_tool_path(scenario.robot, result.q[start:])
-    np.testing.assert_allclose(path, report.tcp_path, atol=FK_TOL)
 
 
 def test_planar_robot_is_drawn_in_its_plane_and_an_arm_in_3d():

@@ -5,7 +5,8 @@ from conftest import robot
 
 from vtm_pin import TRANSITIONS, TransitionError, compute_M
 from vtm_pin.constraints import lock_jacobian, orthogonal_complement
-from vtm_pin.transitions import kkt
+from vtm_pin.transitions import kkt, solve_saddle_point
+from vtm_pin.transitions.projected import compute_null_space_projector
 
 CONSISTENT = ["kkt", "projected", "minimal"]
 ROBOTS = ["planar_3r", "ur5", "panda"]
@@ -130,7 +131,38 @@ def test_lock_of_joint_at_rest_changes_nothing():
 def test_redundant_locks_raise_named_error():
     M = np.eye(3)
     J1 = lock_jacobian(3, [1])
-    with pytest.raises(TransitionError, match="redundant"):
+    message = "KKT transition: singular system, the constraints are redundant"
+    with pytest.raises(TransitionError, match=message):
         kkt.compute_transition(M, J1, lock_jacobian(3, [1]), np.array([1.0, 0.0, 1.0]))
     with pytest.raises(TransitionError, match="redundant"):
         orthogonal_complement(np.vstack([J1, J1]))
+
+
+def test_saddle_point_solve_meets_both_block_rows():
+    """[M G^T; G 0] [x; Lambda] = [f; c] at a robot's mass matrix, with and without f."""
+    rng = np.random.default_rng(5)
+    r = robot("ur5")
+    M = compute_M(r.model, r.model.createData(), rng.uniform(-2.0, 2.0, r.nv))
+    G, c, f = rng.normal(size=(2, r.nv)), rng.normal(size=2), rng.normal(size=r.nv)
+    for top in (f, None):
+        x, Lambda = solve_saddle_point(M, G, c, "test", f=top)
+        expected = np.zeros(r.nv) if top is None else top
+        # one dense solve of a system of condition ~1e4: round-off well below 1e-10
+        np.testing.assert_allclose(M @ x + G.T @ Lambda, expected, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(G @ x, c, rtol=0, atol=1e-10)
+
+
+def test_null_space_projector_is_the_m_orthogonal_projection_onto_ker_j():
+    """N^2 = N, J N = 0, and M N is symmetric (the projection is M-orthogonal)."""
+    rng = np.random.default_rng(6)
+    r = robot("panda")
+    M = compute_M(r.model, r.model.createData(), rng.uniform(-1.0, 1.0, r.nv))
+    J = rng.normal(size=(3, r.nv))
+    N = compute_null_space_projector(M, J)
+    # products of a few well-conditioned solves: round-off ~1e-13
+    np.testing.assert_allclose(N @ N, N, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(J @ N, 0.0, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(M @ N, (M @ N).T, rtol=0, atol=1e-10)
+    np.testing.assert_array_equal(
+        compute_null_space_projector(M, np.zeros((0, r.nv))), np.eye(r.nv)
+    )

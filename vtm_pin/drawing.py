@@ -16,8 +16,9 @@ import pinocchio as pin
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from .kinematics import compute_tool_positions
+from .results import SimulationResult
 from .robot import Robot
-from .simulation import SimulationResult
 
 #: Spread [m] below which a world axis counts as constant and a robot as planar.
 PLANAR_TOLERANCE = 1e-9
@@ -86,18 +87,6 @@ def compute_skeleton(robot: Robot, q: np.ndarray, tool_frame: str | None = None)
     )
 
 
-def compute_tool_path(robot: Robot, q: np.ndarray, tool_frame: str | None = None) -> np.ndarray:
-    """Tool-frame positions [m], shape (k, 3), at configurations ``q`` [rad], shape (k, n)."""
-    model = robot.model
-    data = model.createData()
-    fid = model.getFrameId(tool_frame or robot.tool_frame)
-    path = []
-    for qi in np.atleast_2d(np.asarray(q, dtype=float)):
-        pin.forwardKinematics(model, data, qi)
-        path.append(pin.updateFramePlacement(model, data, fid).translation.copy())
-    return np.array(path)
-
-
 def planar_view(points: np.ndarray) -> str | None:
     """``"xz"``, ``"yz"`` or ``"xy"`` if every point [m] lies in a plane normal to a world axis."""
     spread = np.ptp(points.reshape(-1, 3), axis=0)
@@ -146,7 +135,7 @@ def draw_robot(
     """
     poses = np.atleast_2d(np.asarray(q, dtype=float))
     skeletons = [compute_skeleton(robot, qi, tool_frame) for qi in poses]
-    tool_path = None if path is None else compute_tool_path(robot, path, tool_frame)
+    tool_path = None if path is None else compute_tool_positions(robot, path, tool_frame)
     points = [np.vstack([s.segments, s.ground]).reshape(-1, 3) for s in skeletons]
     if tool_path is not None:
         points.append(tool_path)

@@ -28,6 +28,7 @@ from .constraints import check_independent
 from .dynamics import compute_M
 from .exceptions import ConstraintError, ConstraintNotMet, VtmWarning, excerpt
 from .robot import Robot
+from .transitions.projected import compute_null_space_projector
 
 _AXES = {"x": 0, "y": 1, "z": 2, "rx": 3, "ry": 4, "rz": 5}
 _LWA = pin.LOCAL_WORLD_ALIGNED
@@ -225,8 +226,7 @@ def project_initial_state(
     compute_kinematics(model, data, q, v)
     _, J, _ = stack(tuple(frames), model, data)
     check_independent(J, [f"{f.name}.{a}" for f in frames for a in f.axes])
-    M = compute_M(model, data, q)
-    v = v - M_weighted_correction(M, J, v)
+    v = compute_null_space_projector(compute_M(model, data, q), J) @ v
     dq, dv = np.max(np.abs(q - q0)), np.max(np.abs(v - v0))
     if dq > PROJECTION_WARNING or dv > PROJECTION_WARNING:
         warnings.warn(
@@ -235,11 +235,3 @@ def project_initial_state(
             stacklevel=3,
         )
     return q, v
-
-
-def M_weighted_correction(M: np.ndarray, J: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """M^-1 J^T (J M^-1 J^T)^-1 J v: the part of v that J v = 0 removes, M-orthogonally."""
-    if J.shape[0] == 0:
-        return np.zeros_like(v)
-    Minv_JT = np.linalg.solve(M, J.T)
-    return Minv_JT @ np.linalg.solve(J @ Minv_JT, J @ v)

@@ -1,7 +1,7 @@
 """Adaptive Dormand-Prince 8(5,3) with error control and dense output (Hairer's DOP853).
 
-A lean driver around scipy's DOP853 coefficient tables (``scipy.integrate._ivp``): the same
-method as ``solve_ivp(method="DOP853")`` without the per-step bookkeeping of its solver
+A lean driver around the Dormand-Prince tables of :mod:`.dop853_coefficients`: the same
+method as scipy's ``solve_ivp(method="DOP853")`` without the per-step bookkeeping of its solver
 objects, and with the 7th-order dense output built only for steps in which a state event
 fires. Every interval ends exactly on its end time (the next time event); a state event is
 located on the dense output with Brent's method and the next interval restarts from it.
@@ -14,9 +14,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate._ivp import dop853_coefficients as coef
 
 from ..exceptions import SimulationError, StepLimitError
+from . import dop853_coefficients as coef
 from .base import DEFAULT_MAX_STEPS, Rhs, Segment, StateEvent
 from .fixed_step import locate
 

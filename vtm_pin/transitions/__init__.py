@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from . import kkt, minimal, naive, projected
-from .base import Transition, TransitionResult, finish
+from .base import Transition, TransitionResult, finish, solve_saddle_point
 
 #: Formulations by name; the consistent ones (kkt, projected, minimal) give the same v+.
 TRANSITIONS: dict[str, Transition] = {
@@ -13,4 +13,4 @@ TRANSITIONS: dict[str, Transition] = {
     "projected": projected.compute_transition,
 }
 
-__all__ = ["TRANSITIONS", "Transition", "TransitionResult", "finish"]
+__all__ = ["TRANSITIONS", "Transition", "TransitionResult", "finish", "solve_saddle_point"]

@@ -119,22 +119,32 @@ def finish(
 
 
 def solve_saddle_point(
-    A: np.ndarray, G: np.ndarray, c: np.ndarray, name: str
+    A: np.ndarray,
+    G: np.ndarray,
+    c: np.ndarray,
+    name: str,
+    *,
+    f: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    r"""Solve the momentum balance with constraints, the shape shared by every formulation.
+    r"""Solve a balance under linear constraints: the one saddle-point solve of the package.
 
     .. math:: \begin{pmatrix} A & G^T \\ G & 0 \end{pmatrix}
               \begin{pmatrix} x \\ \Lambda \end{pmatrix} =
-              \begin{pmatrix} 0 \\ c \end{pmatrix}
+              \begin{pmatrix} f \\ c \end{pmatrix}
+
+    The transition formulations solve it for the velocity jump (f = 0); the constrained
+    dynamics of a phase for the accelerations (f = tau - b).
 
     Args:
-        A: Mass matrix of the formulation (M or F1^T M F1), shape (k, k).
-        G: Constraint rows (J+, J2 N or J2 F1), shape (m, k).
-        c: Right-hand side of the velocity constraints, shape (m,).
-        name: Formulation name for the error message.
+        A: Mass matrix of the formulation (M, M_ff or F1^T M F1), shape (k, k).
+        G: Constraint rows (J+, J2 N, J2 F1 or J_f), shape (m, k).
+        c: Right-hand side of the constraint rows, shape (m,).
+        name: What is solved, for the error message (``"KKT transition"``).
+        f: Right-hand side of the balance, shape (k,); zero if None.
 
     Returns:
-        ``(x, Lambda)``: the velocity jump in the formulation's coordinates and the impulses.
+        ``(x, Lambda)``: the solution in the formulation's coordinates and the multipliers
+        (impulses or forces).
 
     Raises:
         TransitionError: The matrix is singular (redundant constraints).
@@ -144,10 +154,9 @@ def solve_saddle_point(
     K[:k, :k] = A
     K[:k, k:] = G.T
     K[k:, :k] = G
+    top = np.zeros(k) if f is None else f
     try:
-        x = np.linalg.solve(K, np.concatenate([np.zeros(k), c]))
+        x = np.linalg.solve(K, np.concatenate([top, c]))
     except np.linalg.LinAlgError as exc:
-        raise TransitionError(
-            f"{name} transition: singular system, the constraints are redundant"
-        ) from exc
+        raise TransitionError(f"{name}: singular system, the constraints are redundant") from exc
     return x[:k], x[k:]

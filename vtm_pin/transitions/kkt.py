@@ -33,5 +33,5 @@ def compute_transition(
         TransitionError: The KKT matrix is singular (redundant constraints).
     """
     J = np.vstack([J1, J2])
-    dv, Lambda = solve_saddle_point(M, J, -J @ v_minus, "KKT")
+    dv, Lambda = solve_saddle_point(M, J, -J @ v_minus, "KKT transition")
     return finish(M, J1, J2, v_minus, v_minus + dv, Lambda)

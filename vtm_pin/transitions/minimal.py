@@ -38,5 +38,5 @@ def compute_transition(
     """
     F1, s = orthogonal_complement(J1)
     G = J2 @ F1
-    ds, _ = solve_saddle_point(F1.T @ M @ F1, G, -G @ v_minus[s], "Minimal-coordinate")
+    ds, _ = solve_saddle_point(F1.T @ M @ F1, G, -G @ v_minus[s], "Minimal-coordinate transition")
     return finish(M, J1, J2, v_minus, v_minus + F1 @ ds)

@@ -59,5 +59,5 @@ def compute_transition(
         N = compute_null_space_projector(M, J1)
     except np.linalg.LinAlgError as exc:
         raise TransitionError(f"Projected transition: {exc}") from exc
-    dv, _ = solve_saddle_point(M, J2 @ N, -J2 @ v_minus, "Projected")
+    dv, _ = solve_saddle_point(M, J2 @ N, -J2 @ v_minus, "Projected transition")
     return finish(M, J1, J2, v_minus, v_minus + dv)

@@ -1,8 +1,10 @@
-"""Measurements of speed against accuracy: work-precision points and per-call costs.
+"""Measurements of speed against accuracy: work-precision points, per-call costs, their plots.
 
-Used by the scripts in ``benchmarks/`` and by ``notebooks/03_speed_vs_accuracy.ipynb``.
-Times are medians of wall-clock repeats on whatever machine runs them; quote ratios measured
-in one run, not absolute numbers from another machine.
+The library of the scripts beside it (``work_precision.py``, ``scaling.py``) and of
+``notebooks/03_speed_vs_accuracy.ipynb``; it is not part of the ``vtm_pin`` package, so nothing
+the simulator imports at run time loads it. Import it with ``benchmarks/`` on ``sys.path``
+(a script run from there has it). Times are medians of wall-clock repeats on whatever machine
+runs them; quote ratios measured in one run, not absolute numbers from another machine.
 """
 
 from __future__ import annotations
@@ -17,16 +19,18 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+from matplotlib.figure import Figure
 
-from .chain import build_chain
-from .constraints import lock_jacobian
-from .dynamics import compute_forward_dynamics, compute_M
-from .holonomic import FrameConstraint, M_weighted_correction, compute_kinematics, stack
-from .integrators import DOP853, RK4, Integrator, SemiImplicitEuler
-from .scenario import Scenario, run_scenario
-from .simulation import SimulationResult
-from .topology import Topology
-from .transitions import TRANSITIONS
+from vtm_pin.chain import build_chain
+from vtm_pin.constraints import lock_jacobian
+from vtm_pin.dynamics import compute_forward_dynamics, compute_M
+from vtm_pin.holonomic import FrameConstraint, compute_kinematics, stack
+from vtm_pin.integrators import DOP853, RK4, Integrator, SemiImplicitEuler
+from vtm_pin.results import SimulationResult
+from vtm_pin.scenario import Scenario, run_scenario
+from vtm_pin.topology import Topology
+from vtm_pin.transitions import TRANSITIONS
+from vtm_pin.transitions.projected import compute_null_space_projector
 
 #: Step sizes [s] (rk4, euler) and relative tolerances [-] (dop853) of a full sweep.
 LADDERS: dict[str, list[float]] = {
@@ -225,7 +229,7 @@ def measure_transition_costs(
         _, J_dock, _ = stack((dock,), model, data)
         old = old[: max(0, n // 2 - J_dock.shape[0])]
         J1 = np.vstack([J_dock, lock_jacobian(n, old)])
-    v = v - M_weighted_correction(compute_M(model, data, q), J1, v)
+    v = compute_null_space_projector(compute_M(model, data, q), J1) @ v
     J2 = lock_jacobian(n, new)
     J = np.vstack([J1, J2])
     M = compute_M(model, data, q)
@@ -254,3 +258,33 @@ def format_transition_costs(rows: Sequence[Mapping[str, float]]) -> str:
         cells = " ".join(f"{1e6 * row[k]:>16.1f}" for k in COST_KEYS)
         lines.append(f"{row['n']:>5.0f} {row['m1']:>4.0f} {cells}")
     return "\n".join(lines)
+
+
+def plot_work_precision(points: Sequence[WorkPoint], title: str) -> Figure:
+    """Wall time [ms] against final-time error [rad], one line per method (log-log)."""
+    fig = Figure(figsize=(7, 5), layout="constrained")
+    ax = fig.add_subplot()
+    for method in dict.fromkeys(p.method for p in points):
+        pts = sorted((p.error, p.wall_time) for p in points if p.method == method)
+        ax.loglog([e for e, _ in pts], [1e3 * w for _, w in pts], "o-", label=method)
+    ax.set_xlabel("error at final time max |q - q_ref| [rad]")
+    ax.set_ylabel("wall time [ms] (median)")
+    ax.set_title(f"Work-precision: {title}")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    return fig
+
+
+def plot_transition_costs(rows: Sequence[Mapping[str, float]], title: str) -> Figure:
+    """Median time [us] of one transition per rule and one right-hand side, against n."""
+    fig = Figure(figsize=(8, 5), layout="constrained")
+    ax = fig.add_subplot()
+    ns = [r["n"] for r in rows]
+    for key in COST_KEYS:
+        ax.loglog(ns, [1e6 * r[key] for r in rows], "o-", label=key)
+    ax.set_xlabel("number of joints n")
+    ax.set_ylabel("median time [us]")
+    ax.set_title(title)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize="small")
+    return fig
