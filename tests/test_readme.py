@@ -143,3 +143,15 @@ def test_readme_pictures_are_what_the_first_command_draws(tmp_path):
             f"{difference}\nIf the change is intended, copy results/pendulum3r/{produced} to "
             f"docs/{shown} after running the README's first command."
         )
+
+
+def test_readme_python_blocks_run_in_order(tmp_path, monkeypatch):
+    """Every ```python block, top to bottom, in one namespace, from an empty folder."""
+    blocks = re.findall(r"```python\n(.+?)\n```", README, flags=re.DOTALL)
+    assert len(blocks) >= 2
+    monkeypatch.chdir(tmp_path)
+    namespace: dict[str, object] = {"__name__": "readme"}
+    for number, block in enumerate(blocks, 1):
+        exec(compile(block, f"README.md python block {number}", "exec"), namespace)
+    assert (tmp_path / "results" / "pendulum3r" / "summary.json").is_file()
+    assert (tmp_path / "pendulum3r.png").is_file()

@@ -18,9 +18,21 @@ def entry_point() -> int:
     try:
         from .cli import main
     except KeyboardInterrupt:
+        forget_interrupt()
         print("vtm-pin: interrupted; nothing written", file=sys.stderr)
         return EXIT_INTERRUPTED
     return main()
+
+
+def forget_interrupt() -> None:
+    """Let a caught Ctrl-C end the process with its exit status, not by SIGINT.
+
+    CPython marks a KeyboardInterrupt raised inside code that ``exec`` runs from a string
+    (``namedtuple`` and others do so while modules are imported) as unhandled, even once it
+    is caught, and then ends the process by SIGINT (status -2) whatever ``sys.exit`` asked.
+    Running a string through ``exec`` clears that mark.
+    """
+    exec("pass")
 
 
 if __name__ == "__main__":

@@ -7,53 +7,25 @@ import dataclasses
 import json
 import math
 import os
-import shutil
 import sys
-import tempfile
 import textwrap
 import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from importlib.metadata import version
 from pathlib import Path
 from typing import NoReturn
 
 import numpy as np
-from matplotlib.figure import Figure
 from tqdm import tqdm
 
-from .analysis import compute_energy_momentum
-from .drawing import plot_poses
-from .exceptions import ScenarioError, UnsupportedJoint, VtmError, VtmWarning
+from .__main__ import forget_interrupt
+from .exceptions import OutputError, ScenarioError, UnsupportedJoint, VtmError, VtmWarning
 from .integrators import INTEGRATORS
-from .plotting import (
-    Runs,
-    plot_brake_states,
-    plot_constraint_drift,
-    plot_energy,
-    plot_joint_angles,
-    plot_joint_rates,
-    plot_momenta,
-    plot_tcp_path,
-)
-from .report import (
-    build_summary,
-    format_stopping,
-    format_summary,
-    integrator_settings,
-    write_trajectory,
-)
-from .robot import ROBOTS_DIR, list_example_robots, list_local_robots, load_robot
-from .scenario import (
-    SCENARIOS_DIR,
-    Scenario,
-    build_integrator,
-    list_scenarios,
-    load_scenario,
-    run_scenario,
-)
-from .simulation import SimulationResult
-from .stopping import StoppingReport, compute_stopping_report
+from .pipeline import Progress, check_output_folder, find_scenario, run, write_outputs
+from .report import format_stopping, format_summary, integrator_settings
+from .robot import list_example_robots, list_local_robots, load_robot
+from .scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
 from .transitions import TRANSITIONS
 
 #: Exit codes: success, a user error (bad scenario, robot or option value), bad usage of the
@@ -76,7 +48,7 @@ exit status:
   130  interrupted (Ctrl-C); nothing is written
 
 examples:
-  vtm-pin run scenarios/pendulum3r.yaml --compare naive
+  vtm-pin run pendulum3r --compare naive
   vtm-pin run scenarios/rx160l_estop_cat0.yaml --integrator dop853 --rtol 1e-8 --json
   vtm-pin list scenarios
 """
@@ -101,6 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except VtmError as exc:
             return _fail(str(exc))
         except KeyboardInterrupt:
+            forget_interrupt()
             print("vtm-pin: interrupted; nothing written", file=sys.stderr)
             return EXIT_INTERRUPTED
         except Exception as exc:  # a bug: still one line, and no partial output
@@ -150,17 +123,23 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     run = sub.add_parser(
         "run",
-        help="simulate a scenario file; print its summary, write results and plots",
+        help="simulate a scenario; print its summary, write results and plots",
         description=_wrap(
-            "Simulate SCENARIO.yaml. Prints a per-event table (and a stopping report if the "
-            "scenario has a stop) and writes summary.json, trajectory.csv and PNG plots into "
-            "--out. Everything is written to a staging folder first and moved in only when "
-            "all succeeded. A progress bar appears on runs longer than a second."
+            "Simulate SCENARIO: a scenario file, or the name of a shipped scenario (see "
+            "'vtm-pin list scenarios'). Prints a per-event table (and a stopping report if "
+            "the scenario has a stop) and writes summary.json, trajectory.csv and PNG plots "
+            "into --out. Everything is written to a staging folder first and moved in only "
+            "when all succeeded. A progress bar appears on runs longer than a second."
         ),
         epilog=_EPILOG,
         formatter_class=formatter,
     )
-    run.add_argument("scenario", type=Path, metavar="SCENARIO.yaml", help="scenario file")
+    run.add_argument(
+        "scenario",
+        metavar="SCENARIO",
+        help="scenario file, or the name of a shipped scenario (pendulum3r); a file of that "
+        "name that exists wins",
+    )
     run.add_argument(
         "--out",
         type=Path,
@@ -238,7 +217,7 @@ def _parser() -> argparse.ArgumentParser:
         type=Path,
         default=None,
         metavar="DIR",
-        help=f"scenarios: folder to list (default: {SCENARIOS_DIR.name}/ of the project)",
+        help="scenarios: folder to list (default: the scenarios shipped with vtm-pin)",
     )
     listing.add_argument(
         "--check",
@@ -256,32 +235,24 @@ def _wrap(text: str) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
-    scenario = _with_integrator_options(load_scenario(args.scenario), args)
+    scenario = _with_integrator_options(load_scenario(find_scenario(args.scenario)), args)
     out = args.out if args.out is not None else Path("results") / scenario.name
-    _check_output_folder(out)
+    try:
+        check_output_folder(out)
+    except OutputError as exc:
+        raise ScenarioError("command line", "--out", exc.problem) from exc
     show = not (args.quiet or args.json)
-    rules = [args.transition or scenario.transition]
-    rules += [name for name in dict.fromkeys(args.compare) if name != rules[0]]
-    results: dict[str, SimulationResult] = {}
-    for rule in rules:
-        with _progress(scenario, rule, show) as progress:
-            results[rule] = run_scenario(scenario, rule, progress)
-    result, others = results[rules[0]], {rule: results[rule] for rule in rules[1:]}
-    runs = {name: (r, compute_energy_momentum(scenario.robot, r)) for name, r in results.items()}
-    stopping = {}
-    if scenario.stop is not None:
-        stopping = {
-            name: compute_stopping_report(scenario.robot, r, scenario.brakes, scenario.tool_frame)
-            for name, r in results.items()
-        }
-    summary = build_summary(scenario, result, runs[rules[0]][1], others, stopping)
-    figures = _figures(scenario, results, runs, stopping)
-    written = _write_outputs(out, summary, results, rules[0], figures)
+    with _progress(scenario, show) as progress:
+        output = run(scenario, transition=args.transition, compare=args.compare, progress=progress)
+    try:
+        written = write_outputs(output, out)
+    except OutputError as exc:
+        raise ScenarioError("command line", "--out", exc.problem) from exc
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json.dumps(output.summary, indent=2))
     elif not args.quiet:
-        print(format_summary(summary))
-        for name, report in stopping.items():
+        print(format_summary(output.summary))
+        for name, report in output.stopping.items():
             print()
             print(format_stopping(name, report))
         print(f"\nwrote {out}/: {', '.join(written)}")
@@ -317,120 +288,63 @@ def _with_integrator_options(scenario: Scenario, args: argparse.Namespace) -> Sc
     return dataclasses.replace(scenario, integrator=integrator)
 
 
-def _check_output_folder(out: Path) -> None:
-    """Refuse, before any simulation, an output folder that cannot be created or written.
+class _ProgressBars:
+    """Progress bars of simulated time on stderr, one per transition rule run in turn.
 
-    Nothing is created: a probe folder is made (and removed) in the nearest existing folder
-    on the way to ``out``.
+    A bar is drawn when ``show`` is set and stderr is a terminal, once its run has taken
+    :data:`PROGRESS_DELAY` seconds.
     """
-    try:
-        target = Path(os.path.abspath(out))
-        existing = next(p for p in [target, *target.parents] if p.exists())
-        if not existing.is_dir():
-            problem = f"'{existing}' is a file, not a folder"
-        else:
-            os.rmdir(tempfile.mkdtemp(prefix=".vtm-pin-probe-", dir=existing))
-            return
-    except (OSError, ValueError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        problem = f"cannot write in '{out}' ({reason})"
-    raise ScenarioError("command line", "--out", problem)
+
+    def __init__(self, scenario: Scenario, show: bool) -> None:
+        self.name = scenario.name
+        self.total = scenario.duration  # [s]
+        self.disable = not (show and sys.stderr.isatty())
+        self.rule: str | None = None
+        self.bar: tqdm | None = None
+        self.reached = 0.0  # [s] simulated time the bar shows
+
+    def __call__(self, rule: str, t: float) -> None:
+        """Move the bar of ``rule`` to the simulated time ``t`` [s]."""
+        if rule != self.rule:
+            self.finish()
+            self.rule, self.reached = rule, 0.0
+            self.bar = tqdm(
+                total=self.total,
+                desc=f"{self.name} ({rule})",
+                bar_format="{desc}: {percentage:3.0f}%|{bar}| t = {n:.3f} of {total:g} s "
+                "[{elapsed} elapsed, {remaining} left]",
+                delay=PROGRESS_DELAY,
+                leave=False,
+                file=sys.stderr,
+                disable=self.disable,
+            )
+        if self.bar is not None and t >= self.reached + 1e-3 * self.total:  # <= 1000 updates
+            self.bar.update(t - self.reached)
+            self.reached = t
+
+    def finish(self) -> None:
+        """The current run is done: show 100 % before its bar goes."""
+        if self.bar is not None:
+            self.bar.update(self.total - self.reached)
+            self.bar.refresh()
+            self.close()
+
+    def close(self) -> None:
+        """Remove the current bar, if any."""
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
 
 
 @contextmanager
-def _progress(scenario: Scenario, rule: str, show: bool) -> Iterator[Callable[[float], None]]:
-    """A callback moving a progress bar of simulated time.
-
-    The bar is drawn on stderr when it is a terminal, once the run has taken
-    :data:`PROGRESS_DELAY` seconds.
-    """
-    total = scenario.duration
-    bar = tqdm(
-        total=total,
-        desc=f"{scenario.name} ({rule})",
-        bar_format="{desc}: {percentage:3.0f}%|{bar}| t = {n:.3f} of {total:g} s "
-        "[{elapsed} elapsed, {remaining} left]",
-        delay=PROGRESS_DELAY,
-        leave=False,
-        file=sys.stderr,
-        disable=not (show and sys.stderr.isatty()),
-    )
-    reached = [0.0]
-
-    def progress(t: float) -> None:
-        if t >= reached[0] + 1e-3 * total:  # at most 1000 updates per run
-            bar.update(t - reached[0])
-            reached[0] = t
-
+def _progress(scenario: Scenario, show: bool) -> Iterator[Progress]:
+    """A progress callback for :func:`vtm_pin.pipeline.run`; its bars go when the block ends."""
+    bars = _ProgressBars(scenario, show)
     try:
-        yield progress
-        bar.update(total - reached[0])  # the run is done: show 100 % before the bar goes
-        bar.refresh()
+        yield bars
+        bars.finish()
     finally:
-        bar.close()
-
-
-def _figures(
-    scenario: Scenario,
-    results: dict[str, SimulationResult],
-    runs: Runs,
-    stopping: Mapping[str, StoppingReport],
-) -> dict[str, Figure]:
-    """The PNG plots of a run, by file name."""
-    result = next(iter(results.values()))
-    figures = {
-        "joint_angles.png": plot_joint_angles(runs),
-        "joint_rates.png": plot_joint_rates(runs),
-        "momenta.png": plot_momenta(runs),
-        "energy.png": plot_energy(runs),
-        "poses.png": plot_poses(scenario.robot, results, scenario.tool_frame),
-    }
-    ratio = scenario.robot.gear_ratio
-    if np.any(ratio != 1.0):
-        figures["motor_angles.png"] = plot_joint_angles(runs, ratio)
-        figures["motor_rates.png"] = plot_joint_rates(runs, ratio)
-    if np.any(np.isfinite(result.drift)):
-        figures["constraint_drift.png"] = plot_constraint_drift(result)
-    if scenario.stop is not None:
-        figures["brakes.png"] = plot_brake_states(result)
-        figures["tcp_path.png"] = plot_tcp_path(stopping)
-    return figures
-
-
-def _write_outputs(
-    out: Path,
-    summary: dict[str, object],
-    results: dict[str, SimulationResult],
-    main_rule: str,
-    figures: dict[str, Figure],
-) -> list[str]:
-    """Write everything into a staging folder, then move it into ``out`` (no partial output).
-
-    Returns the names of the files written.
-    """
-    parent = out.resolve().parent
-    staging: Path | None = None
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
-        (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        for name, result in results.items():
-            suffix = "" if name == main_rule else f"_{name}"
-            write_trajectory(staging / f"trajectory{suffix}.csv", result)
-        for filename, figure in figures.items():
-            figure.savefig(staging / filename, dpi=120)
-        out.mkdir(parents=True, exist_ok=True)
-        written = sorted(item.name for item in staging.iterdir())
-        for name in written:
-            os.replace(staging / name, out / name)
-    except OSError as exc:
-        raise ScenarioError(
-            "command line", "--out", f"cannot write '{out}' ({exc.strerror or exc})"
-        ) from exc
-    finally:
-        if staging is not None:
-            shutil.rmtree(staging, ignore_errors=True)
-    return written
+        bars.close()
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -472,7 +386,7 @@ def _robot_rows(check: bool, show: bool) -> list[list[object]]:
     rows: list[list[object]] = []
     for name in list_local_robots():
         robot = load_robot(name)
-        rows.append([name, robot.nv, robot.tool_frame, f"{ROBOTS_DIR.name}/{name}.urdf"])
+        rows.append([name, robot.nv, robot.tool_frame, f"robots/{name}.urdf"])
     if check:
         names = list_example_robots()
         shown = show and sys.stderr.isatty()

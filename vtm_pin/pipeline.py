@@ -1,0 +1,218 @@
+"""The run pipeline: a scenario's runs, energies, stopping reports and summary, and its files.
+
+:func:`run` is what ``vtm-pin run`` does without the command line: simulate a scenario with
+one or more transition rules, then derive everything the tables and files need. The notebooks
+and studies call it too. :func:`write_outputs` writes a run's files into a folder, all or
+nothing. No figure is drawn and nothing is printed unless asked: :func:`write_outputs` draws
+with :func:`vtm_pin.plotting.plot_run`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from .analysis import EnergyMomentum, compute_energy_momentum
+from .exceptions import OutputError, ScenarioError, excerpt
+from .report import build_summary, write_trajectory
+from .results import SimulationResult
+from .scenario import SCENARIOS_DIR, Scenario, load_scenario, run_scenario
+from .stopping import StoppingReport, compute_stopping_report
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+#: Called with the transition rule being run and the simulated time reached [s].
+Progress = Callable[[str, float], None]
+
+#: Resolution of the saved PNG figures [dots per inch].
+FIGURE_DPI = 120
+
+
+@dataclass(frozen=True)
+class RunOutput:
+    """Everything one run of a scenario produced: results, energies, reports and summary.
+
+    Attributes:
+        scenario: The scenario that was run.
+        results: Simulation per transition rule, the main rule first.
+        energies: Energies and momenta at every sample, per rule.
+        stopping: Stopping report per rule; empty if the scenario has no stop.
+        summary: The JSON-ready summary of ``summary.json`` (keys documented in the README).
+    """
+
+    scenario: Scenario
+    results: Mapping[str, SimulationResult]
+    energies: Mapping[str, EnergyMomentum]
+    stopping: Mapping[str, StoppingReport]
+    summary: Mapping[str, Any]
+
+    @property
+    def rule(self) -> str:
+        """The main run's transition rule."""
+        return next(iter(self.results))
+
+    @property
+    def result(self) -> SimulationResult:
+        """The main run's simulation."""
+        return self.results[self.rule]
+
+    @property
+    def runs(self) -> dict[str, tuple[SimulationResult, EnergyMomentum]]:
+        """``{rule: (result, energy)}``, as the functions of :mod:`vtm_pin.plotting` take."""
+        return {rule: (result, self.energies[rule]) for rule, result in self.results.items()}
+
+
+def find_scenario(spec: str | Path) -> Path:
+    """The scenario file ``spec`` names: an existing path, else a shipped scenario's name.
+
+    A path that exists wins; otherwise a bare name (``pendulum3r``, or ``pendulum3r.yaml``)
+    names a file of :data:`vtm_pin.scenario.SCENARIOS_DIR`, the scenarios shipped with the
+    package. Any other path is returned as it is, so that reading it reports what is wrong.
+
+    Raises:
+        ScenarioError: ``spec`` is a bare name that is neither a file nor a shipped scenario;
+            the message lists the shipped ones.
+    """
+    path = Path(spec)
+    try:
+        if path.exists() or len(path.parts) != 1 or path.suffix not in ("", ".yaml"):
+            return path
+        shipped = SCENARIOS_DIR / f"{path.stem}.yaml"
+        if shipped.is_file():
+            return shipped
+    except (OSError, ValueError):  # a name too long for a path, or with a NUL in it
+        return path
+    names = ", ".join(sorted(p.stem for p in SCENARIOS_DIR.glob("*.yaml")))
+    raise ScenarioError(
+        excerpt(str(spec)),
+        "",
+        f"no such file, and not the name of a shipped scenario ({names})",
+    )
+
+
+def run(
+    scenario: Scenario | str | Path,
+    *,
+    transition: str | None = None,
+    compare: Sequence[str] = (),
+    progress: Progress | None = None,
+) -> RunOutput:
+    """Simulate a scenario and derive its energies, stopping reports and summary.
+
+    Args:
+        scenario: A loaded scenario, a scenario file, or a shipped scenario's name (see
+            :func:`find_scenario`).
+        transition: Transition rule of the main run; the scenario's by default.
+        compare: Further rules to run the same scenario with (repeats and the main rule are
+            dropped); they appear under ``compare`` in the summary.
+        progress: Called with the rule and the simulated time [s] as each run advances.
+
+    Returns:
+        The results, energies, stopping reports (for a scenario with a stop) and summary.
+
+    Raises:
+        ScenarioError: The scenario is malformed, or its run broke one of its limits.
+        SimulationError: A simulation diverged.
+    """
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(find_scenario(scenario))
+    main = transition or scenario.transition
+    rules = list(dict.fromkeys([main, *compare]))
+    results = {rule: _simulate(scenario, rule, progress) for rule in rules}
+    energies = {rule: compute_energy_momentum(scenario.robot, r) for rule, r in results.items()}
+    stopping: dict[str, StoppingReport] = {}
+    if scenario.stop is not None:
+        stopping = {
+            rule: compute_stopping_report(scenario.robot, r, scenario.brakes, scenario.tool_frame)
+            for rule, r in results.items()
+        }
+    others = {rule: results[rule] for rule in rules[1:]}
+    summary = build_summary(scenario, results[main], energies[main], others, stopping)
+    return RunOutput(scenario, results, energies, stopping, summary)
+
+
+def _simulate(scenario: Scenario, rule: str, progress: Progress | None) -> SimulationResult:
+    """One run of ``scenario`` with ``rule``, reporting its progress under the rule's name."""
+    if progress is None:
+        return run_scenario(scenario, rule)
+    report = progress
+    return run_scenario(scenario, rule, lambda t: report(rule, t))
+
+
+def check_output_folder(out: str | Path) -> None:
+    """Refuse, before any simulation, an output folder that cannot be created or written.
+
+    Nothing is created: a probe folder is made (and removed) in the nearest existing folder
+    on the way to ``out``.
+
+    Raises:
+        OutputError: ``out`` or a folder on its way is a file, or it cannot be written.
+    """
+    try:
+        target = Path(os.path.abspath(out))
+        existing = next(p for p in [target, *target.parents] if p.exists())
+        if not existing.is_dir():
+            problem = f"'{existing}' is a file, not a folder"
+        else:
+            os.rmdir(tempfile.mkdtemp(prefix=".vtm-pin-probe-", dir=existing))
+            return
+    except (OSError, ValueError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        problem = f"cannot write in '{out}' ({reason})"
+    raise OutputError(str(out), problem)
+
+
+def write_outputs(
+    output: RunOutput, out: str | Path, figures: Mapping[str, Figure] | None = None
+) -> list[str]:
+    """Write a run's files into ``out``: all of them, or none.
+
+    The files (``summary.json``, ``trajectory.csv``, ``trajectory_<rule>.csv`` per compared
+    rule, and the PNG figures) are written into a staging folder beside ``out``, then moved
+    in; files of the same name already in ``out`` are replaced, others are kept.
+
+    Args:
+        output: The run, as :func:`run` returns it.
+        out: The output folder; created if missing.
+        figures: The figures to save, by file name; :func:`vtm_pin.plotting.plot_run`'s by
+            default.
+
+    Returns:
+        The names of the files written, sorted.
+
+    Raises:
+        OutputError: A file could not be written; nothing was moved into ``out``.
+    """
+    if figures is None:
+        from .plotting import plot_run  # Matplotlib only when figures are wanted
+
+        figures = plot_run(output)
+    out = Path(out)
+    staging: Path | None = None
+    try:
+        parent = out.resolve().parent
+        parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
+        (staging / "summary.json").write_text(json.dumps(output.summary, indent=2) + "\n")
+        for rule, result in output.results.items():
+            suffix = "" if rule == output.rule else f"_{rule}"
+            write_trajectory(staging / f"trajectory{suffix}.csv", result)
+        for filename, figure in figures.items():
+            figure.savefig(staging / filename, dpi=FIGURE_DPI)
+        out.mkdir(parents=True, exist_ok=True)
+        written = sorted(item.name for item in staging.iterdir())
+        for name in written:
+            os.replace(staging / name, out / name)
+    except OSError as exc:
+        raise OutputError(str(out), f"cannot write '{out}' ({exc.strerror or exc})") from exc
+    finally:
+        if staging is not None:
+            shutil.rmtree(staging, ignore_errors=True)
+    return written
