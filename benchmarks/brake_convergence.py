@@ -3,6 +3,8 @@
 A brake with delay 0 engages on one joint at the stop signal and slides until the joint
 sticks; the state a little later is compared with the run in which the same brake is ideal
 (the paper's instantaneous lock). Prints the error per torque level and the observed order.
+Brake torques are motor side; the robot's gear ratio (the only copy, in the robot) makes them
+joint torques.
 
     python benchmarks/brake_convergence.py
 """
@@ -13,6 +15,7 @@ import numpy as np
 
 import vtm_pin as vp
 from vtm_pin.brakes import Brake
+from vtm_pin.friction import Coulomb
 from vtm_pin.stop import Stop
 
 CASES = {
@@ -32,17 +35,10 @@ LEVELS = [1e1, 1e2, 1e3, 1e4, 1e5, 1e6]  # sliding torque, motor side [N m]
 
 def run(robot: vp.Robot, case: tuple, brake: Brake) -> vp.SimulationResult:
     _, _, q0, v0, t_signal, t_end = case
-    return vp.simulate(
-        robot,
-        np.array(q0),
-        np.array(v0),
-        t_end,
-        [],
-        vp.RK4(1e-5),
-        "kkt",
-        [brake],
-        Stop(t_signal),
+    problem = vp.Problem(
+        robot, np.array(q0), np.array(v0), t_end, brakes=(brake,), stop=Stop(t_signal)
     )
+    return vp.simulate(problem, vp.RK4(1e-5))
 
 
 def main() -> None:
@@ -61,7 +57,7 @@ def main() -> None:
         )
         previous = None
         for torque in LEVELS:
-            result = run(robot, case, Brake(joint, sliding_torque=torque, static_torque=1e9))
+            result = run(robot, case, Brake(joint, friction=Coulomb(torque, 1e9)))
             stick = [e.t for e in result.brake_events if e.kind == "stick"]
             dv = np.max(np.abs(result.v[-1] - ideal.v[-1]))
             dq = np.max(np.abs(result.q[-1] - ideal.q[-1]))

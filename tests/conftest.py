@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vtm_pin import Robot, SimulationResult, load_robot, simulate
+from vtm_pin import Problem, Robot, SimulationResult, load_robot, simulate
 from vtm_pin.brakes import Brake
+from vtm_pin.friction import Coulomb
 from vtm_pin.stop import Stop
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -35,13 +36,12 @@ def _strict_numpy():
 #: Built to trigger every transition of the brake state machine on joint 1 of the pendulum:
 #: from q = (0, 1.2, 0) rad, v = (2, 0, 0) rad/s the brake (slide 300, static 400 N m) must
 #: reverse three times, stick, slip, stick and slip again within 3 s.
-RESLIP_BRAKE = Brake("joint1", sliding_torque=300.0, static_torque=400.0)
+RESLIP_BRAKE = Brake("joint1", friction=Coulomb(300.0, 400.0))
 RESLIP_KINDS = ["engage", "reverse", "reverse", "reverse", "stick", "slip", "stick", "slip"]
 
 
 def run_reslip(integrator, duration: float = 3.0) -> SimulationResult:
     """The re-slip pendulum run with the given integrator."""
     q0, v0 = np.array([0.0, 1.2, 0.0]), np.array([2.0, 0.0, 0.0])
-    return simulate(
-        robot("planar_3r"), q0, v0, duration, [], integrator, "kkt", [RESLIP_BRAKE], Stop(0.0)
-    )
+    problem = Problem(robot("planar_3r"), q0, v0, duration, brakes=(RESLIP_BRAKE,), stop=Stop(0.0))
+    return simulate(problem, integrator)

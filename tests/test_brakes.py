@@ -5,9 +5,10 @@ import pinocchio as pin
 import pytest
 from conftest import RESLIP_BRAKE, RESLIP_KINDS, robot, run_reslip
 
-from vtm_pin import RK4, LockEvent, compute_energy_momentum, compute_M, simulate
+from vtm_pin import RK4, LockEvent, Problem, compute_energy_momentum, compute_M, simulate
 from vtm_pin.brakes import Brake, BrakeMode
 from vtm_pin.exceptions import BrakeError
+from vtm_pin.friction import Coulomb, Stribeck
 from vtm_pin.phase import Phase
 from vtm_pin.stop import Stop
 from vtm_pin.topology import Topology
@@ -20,28 +21,34 @@ def run_pendulum(brakes, duration=3.0, dt=1e-4, stop=None, events=(), event_tol=
     r = robot("planar_3r")
     integrator = RK4(dt, event_tol=event_tol)
     stop = Stop(0.0) if stop is None else stop
-    return simulate(r, Q0, v0, duration, list(events), integrator, "kkt", brakes, stop)
+    problem = Problem(r, Q0, v0, duration, tuple(events), tuple(brakes), stop)
+    return simulate(problem, integrator)
 
 
 V_MOVING = np.array([1.0, -2.0, 1.5])  # [rad/s], held by the drives until the stop signal
 
 
 @pytest.mark.parametrize(
-    "kwargs, message",
+    "law, message",
     [
-        ({"sliding_torque": 0.0}, r"Brake on 'j': sliding torque 0.0 N m is not > 0"),
-        ({"sliding_torque": -5.0}, r"sliding torque -5.0 N m is not > 0"),
+        (lambda: Coulomb(0.0), r"sliding torque 0.0 N m is not a finite number > 0"),
+        (lambda: Coulomb(-5.0), r"sliding torque -5.0 N m is not a finite number > 0"),
+        (lambda: Coulomb(math.inf), r"sliding torque inf N m is not a finite number > 0"),
         (
-            {"sliding_torque": 5.0, "static_torque": 4.0},
-            r"static torque 4.0 N m is below the sliding torque 5.0 N m",
+            lambda: Coulomb(5.0, 4.0),
+            r"static torque 4.0 N m is not a finite number >= the sliding torque 5.0 N m",
         ),
-        ({"sliding_torque": 5.0, "delay": -0.1}, r"delay -0.1 s is not a finite number >= 0"),
-        ({"sliding_torque": 5.0, "ramp": -1.0}, r"ramp -1.0 s is not a finite number >= 0"),
+        (lambda: Coulomb(5.0, ramp=-1.0), r"ramp -1.0 s is not a finite number >= 0"),
+        (
+            lambda: Stribeck(5.0, 6.0, stribeck_velocity=0.0),
+            r"Stribeck velocity 0.0 rad/s is not a finite number > 0",
+        ),
+        (lambda: Brake("j", delay=-0.1), r"Brake on 'j': delay -0.1 s is not a finite number >= 0"),
     ],
 )
-def test_brake_rejects_bad_figures(kwargs, message):
+def test_brake_rejects_bad_figures(law, message):
     with pytest.raises(BrakeError, match=message):
-        Brake("j", **kwargs)
+        law()
 
 
 def test_category_one_needs_ramp_and_torque_limit():
@@ -64,7 +71,7 @@ def test_holding_torque_is_the_kkt_multiplier():
         v = rng.uniform(-1, 1, 6)
         v[locked] = 0.0
         topology = Topology(r, locked, q)
-        phase = Phase(r, topology, [BrakeMode.FREE] * 6, {}, {})
+        phase = Phase(r, topology)
         hold = phase.holding_torque(0.0, topology.split(q, v))
         M = compute_M(r.model, data, q)
         b = pin.nonLinearEffects(r.model, data, q, v)
@@ -91,7 +98,7 @@ def brake_convergence(levels=(1e3, 1e4, 1e5, 1e6)):
     errors = []
     for torque in levels:
         finite = run_pendulum(
-            [Brake("joint2", sliding_torque=torque, static_torque=1e7)],
+            [Brake("joint2", friction=Coulomb(torque, 1e7))],
             duration=1.0,
             stop=Stop(0.8),
             v0=V_MOVING,
@@ -116,7 +123,7 @@ def test_growing_brake_torque_converges_to_ideal_jump():
 def test_state_machine_sticks_reverses_and_slips():
     result = run_reslip(RK4(1e-4))
     assert [e.kind for e in result.brake_events][:8] == RESLIP_KINDS
-    static = RESLIP_BRAKE.static(0.0)
+    static = RESLIP_BRAKE.static(0.0, 1.0)  # [N m], gear ratio 1
     for event in result.brake_events:
         if event.kind in ("stick", "reverse"):
             assert abs(event.v) <= 1e-12  # [rad/s] located on the zero crossing
@@ -167,9 +174,9 @@ def test_category_one_ramp_stops_within_torque_limits():
     r = robot("planar_3r")
     limit = np.array([3000.0, 2000.0, 1000.0])
     stop = Stop(0.0, category=1, ramp_time=0.5, torque_limit=limit)
-    brakes = [Brake(j, delay=0.05, sliding_torque=2000.0, static_torque=3000.0) for j in r.joints]
+    brakes = [Brake(j, delay=0.05, friction=Coulomb(2000.0, 3000.0)) for j in r.joints]
     q0, v0 = np.array([0.2, 0.3, 0.1]), np.array([1.0, -1.0, 0.5])
-    result = simulate(r, q0, v0, 1.0, [], RK4(1e-4), "kkt", brakes, stop)
+    result = simulate(Problem(r, q0, v0, 1.0, brakes=tuple(brakes), stop=stop), RK4(1e-4))
     at_ramp_end = np.flatnonzero(result.t == 0.5)[0]
     assert np.max(np.abs(result.v[at_ramp_end])) < 1e-3  # [rad/s]: the drives stopped it
     assert [e.kind for e in result.brake_events[:3]] == ["engage", "engage", "engage"]
@@ -189,9 +196,10 @@ Q_LOADED = np.array([0.0, 1.2, 0.0])  # [rad]
 
 def engage_at_rest(v1: float, static: float, **kwargs):
     """Joint 1 braked from t = 0 on, starting at rate ``v1``; joints 2 and 3 free at rest."""
-    brake = Brake("joint1", sliding_torque=0.75 * static, static_torque=static, **kwargs)
+    brake = Brake("joint1", friction=Coulomb(0.75 * static, static, **kwargs))
     v0 = np.array([v1, 0.0, 0.0])
-    return simulate(robot("planar_3r"), Q_LOADED, v0, 0.3, [], RK4(1e-4), "kkt", [brake], Stop())
+    problem = Problem(robot("planar_3r"), Q_LOADED, v0, 0.3, brakes=(brake,), stop=Stop())
+    return simulate(problem, RK4(1e-4))
 
 
 @pytest.mark.parametrize("v1", [0.0, 1e-15, -1e-15, 2e-20, -9e-19])
@@ -225,18 +233,11 @@ def test_a_lock_that_reverses_a_sliding_joint_reverses_its_friction():
     """Locking joint 2 at 0.01 s flips joint 3 from -1.97 to +1.11 rad/s: its brake must now
     push the other way, so that it keeps removing energy."""
     r = robot("planar_3r")
-    brake = Brake("joint3", sliding_torque=1.0)
-    result = simulate(
-        r,
-        np.zeros(3),
-        np.array([0.0, 3.0, -2.0]),
-        0.3,
-        [LockEvent(0.01, ("joint2",))],
-        RK4(1e-4),
-        "kkt",
-        [brake],
-        Stop(),
-    )
+    brake = Brake("joint3", friction=Coulomb(1.0))
+    v0 = np.array([0.0, 3.0, -2.0])  # [rad/s]
+    events = (LockEvent(0.01, ("joint2",)),)
+    problem = Problem(r, np.zeros(3), v0, 0.3, events, brakes=(brake,), stop=Stop())
+    result = simulate(problem, RK4(1e-4))
     event = result.events[0]
     assert event.v_minus[2] < -1.0 and event.v_plus[2] > 1.0
     reverse = result.brake_events[1]
@@ -253,11 +254,9 @@ def test_category_one_resting_joints_stay_at_rest_when_the_brakes_engage():
     limit = np.array([3000.0, 2000.0, 1000.0])  # [N m]
     stop = Stop(0.0, category=1, ramp_time=0.3, torque_limit=limit)
     # Joint 1 needs 1364 N m to hold after the others stick: every brake can hold.
-    brakes = [Brake(j, delay=0.05, sliding_torque=2000.0, static_torque=2500.0) for j in r.joints]
-    result = simulate(
-        r, np.array([0.0, 0.3, 0.1]), np.array([1.0, 0.0, 0.0]), 0.6, [], RK4(1e-4), "kkt",
-        brakes, stop,
-    )  # fmt: skip
+    brakes = [Brake(j, delay=0.05, friction=Coulomb(2000.0, 2500.0)) for j in r.joints]
+    q0, v0 = np.array([0.0, 0.3, 0.1]), np.array([1.0, 0.0, 0.0])
+    result = simulate(Problem(r, q0, v0, 0.6, brakes=tuple(brakes), stop=stop), RK4(1e-4))
     after = result.t > 0.35  # the sample at 0.35 s itself is the state before engagement
     assert np.all(result.v[after][:, 1:] == 0.0)
     assert result.brake_work[-1] >= 0.0 and np.min(np.diff(result.brake_work)) >= -1e-12

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from vtm_pin import TRANSITIONS, RobotLoadError, compute_M, simulate
+from vtm_pin import TRANSITIONS, Problem, RobotLoadError, compute_M, simulate
 from vtm_pin.chain import LINK_LENGTH, build_chain
 from vtm_pin.constraints import lock_jacobian
 from vtm_pin.integrators import DOP853
@@ -24,7 +24,7 @@ def test_hanging_chain_is_at_rest_and_tip_length():
     pin.framesForwardKinematics(robot.model, data, np.zeros(5))
     tip = data.oMf[robot.model.getFrameId("tip")].translation
     np.testing.assert_allclose(tip, [0.0, 0.0, -5 * LINK_LENGTH], atol=1e-15)
-    result = simulate(robot, np.zeros(5), np.zeros(5), 0.5, [], DOP853(1e-10, 1e-12))
+    result = simulate(Problem(robot, np.zeros(5), np.zeros(5), 0.5), DOP853(1e-10, 1e-12))
     assert np.max(np.abs(result.q[-1])) == 0.0  # hanging straight down is an equilibrium
 
 

@@ -108,7 +108,7 @@ def test_bad_brake_writes_nothing(tmp_path, capsys):
     )
     assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
-    assert "static torque 1 N m is below the sliding torque 5.0 N m" in err
+    assert "'brakes.joint1': static torque 1 N m is not a finite number >= the sliding" in err
     assert err.count("\n") == 1
     assert [p.name for p in tmp_path.iterdir()] == ["bad.yaml"]
 
@@ -194,12 +194,12 @@ def test_progress_bar_on_a_terminal_only(tmp_path, capsys, monkeypatch):
 
 
 def test_interrupt_exits_130_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    import vtm_pin.cli
+    import vtm_pin.pipeline
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(vtm_pin.cli, "run_scenario", interrupted)
+    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", interrupted)
     out = tmp_path / "out"
     assert main(["run", str(PAPER), "--out", str(out)]) == 130
     assert capsys.readouterr().err == "vtm-pin: interrupted; nothing written\n"
@@ -246,9 +246,9 @@ def fail_if_simulated(*args, **kwargs):
 
 @pytest.mark.parametrize("where", ["afile/out", "afile", "afile/a/b"])
 def test_out_under_a_file_is_refused_before_the_simulation(tmp_path, capsys, monkeypatch, where):
-    import vtm_pin.cli
+    import vtm_pin.pipeline
 
-    monkeypatch.setattr(vtm_pin.cli, "run_scenario", fail_if_simulated)
+    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", fail_if_simulated)
     (tmp_path / "afile").write_text("x")
     assert main(["run", str(PAPER), "--out", str(tmp_path / where)]) == 1
     err = capsys.readouterr().err
@@ -258,9 +258,9 @@ def test_out_under_a_file_is_refused_before_the_simulation(tmp_path, capsys, mon
 
 
 def test_out_in_an_unwritable_place_is_refused_before_the_simulation(capsys, monkeypatch):
-    import vtm_pin.cli
+    import vtm_pin.pipeline
 
-    monkeypatch.setattr(vtm_pin.cli, "run_scenario", fail_if_simulated)
+    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", fail_if_simulated)
     assert main(["run", str(PAPER), "--out", "/proc/vtm-pin-test/out"]) == 1
     assert capsys.readouterr().err.startswith("vtm-pin: error: command line: '--out': cannot write")
 
@@ -302,7 +302,7 @@ def test_sigint_early_in_a_real_process_exits_130_in_one_line(tmp_path):
 def test_failure_prints_its_error_only_and_numpy_warnings_never(tmp_path, capsys, monkeypatch):
     import warnings
 
-    import vtm_pin.cli
+    import vtm_pin.pipeline
     from vtm_pin import SimulationError, VtmWarning
 
     def noisy(*args, **kwargs):
@@ -310,19 +310,19 @@ def test_failure_prints_its_error_only_and_numpy_warnings_never(tmp_path, capsys
         warnings.warn("something was assumed", VtmWarning, stacklevel=1)
         raise SimulationError("it went wrong\non two lines")
 
-    monkeypatch.setattr(vtm_pin.cli, "run_scenario", noisy)
+    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", noisy)
     assert main(["run", str(PAPER), "--out", str(tmp_path / "out")]) == 1
     assert capsys.readouterr().err == "vtm-pin: error: it went wrong on two lines\n"
     assert list(tmp_path.iterdir()) == []
 
 
 def test_a_bug_is_one_line_too(tmp_path, capsys, monkeypatch):
-    import vtm_pin.cli
+    import vtm_pin.pipeline
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("division by zero")
 
-    monkeypatch.setattr(vtm_pin.cli, "run_scenario", broken)
+    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", broken)
     assert main(["run", str(PAPER), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("vtm-pin: error: internal error (ZeroDivisionError: division by zero)")
@@ -346,3 +346,24 @@ def test_integrator_options_follow_the_scenario_rules(tmp_path, capsys):
     assert main(["run", str(PAPER), "--out", out, "--max-steps", "0"]) == 1
     assert "'--max-steps': 0 must be >= 1" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_run_takes_a_shipped_scenario_name_from_any_folder(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "pendulum3r", "--quiet"]) == 0
+    summary = json.loads((tmp_path / "results" / "pendulum3r" / "summary.json").read_text())
+    assert summary["scenario"].endswith("pendulum3r.yaml") and summary["duration"] == 2.0
+    raw = yaml.safe_load(PAPER.read_text())
+    raw.update(duration=0.5, events=[{"t": 0.25, "lock": ["joint2"]}])
+    (tmp_path / "pendulum3r").write_text(yaml.safe_dump(raw))  # a file of that name wins
+    assert main(["run", "pendulum3r", "--quiet", "--out", "mine"]) == 0
+    summary = json.loads((tmp_path / "mine" / "summary.json").read_text())
+    assert summary["scenario"] == "pendulum3r" and summary["duration"] == 0.5
+    assert main(["run", "pendulum4r"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(
+        "vtm-pin: error: pendulum4r: no such file, and not the name of a shipped scenario ("
+    )
+    assert "pendulum3r, rx160l_dock_point" in err and err.count("\n") == 1
+    assert main(["run", "--help"]) == 0
+    assert "name of a shipped scenario" in " ".join(capsys.readouterr().out.split())

@@ -9,6 +9,7 @@ from vtm_pin import (
     TRANSITIONS,
     Drive,
     LockEvent,
+    Problem,
     SimulationError,
     TransitionError,
     compute_energy_momentum,
@@ -28,7 +29,7 @@ DEFAULT = RK4(1e-4)
 
 
 def run(events, integrator=DEFAULT, duration=1.5, r=None, v0=V0, q0=Q0):
-    return simulate(r or robot("planar_3r"), q0, v0, duration, events, integrator)
+    return simulate(Problem(r or robot("planar_3r"), q0, v0, duration, tuple(events)), integrator)
 
 
 @pytest.mark.parametrize("integrator", METHODS, ids=lambda i: i.name)

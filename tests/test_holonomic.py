@@ -7,16 +7,15 @@ from vtm_pin import (
     TRANSITIONS,
     ConstraintError,
     LockEvent,
+    Problem,
     compute_M,
     load_scenario,
     run_scenario,
     simulate,
 )
-from vtm_pin.brakes import BrakeMode
 from vtm_pin.constraints import check_independent, lock_jacobian
 from vtm_pin.holonomic import (
     FrameConstraint,
-    M_weighted_correction,
     compute_kinematics,
     project_initial_state,
     stack,
@@ -24,6 +23,7 @@ from vtm_pin.holonomic import (
 from vtm_pin.integrators import DOP853
 from vtm_pin.phase import Phase
 from vtm_pin.topology import Topology
+from vtm_pin.transitions.projected import compute_null_space_projector
 
 LOOP = FrameConstraint("loop", "tip_l", "tip_r", "point", ("x", "z"))
 Q_FIVEBAR = np.array([-0.4, 0.57978007700581935, 0.2, 0.16334925102132061])  # [rad], closed
@@ -76,7 +76,7 @@ def pinocchio_acceleration(model, q, v, contact):
 
 def our_acceleration(r, constraints, q, v):
     topology = Topology(r, [], q)
-    phase = Phase(r, topology, [BrakeMode.FREE] * r.nv, {}, {}, constraints=tuple(constraints))
+    phase = Phase(r, topology, constraints=tuple(constraints))
     return phase.constrained_acceleration(topology.split(q, v), np.zeros(r.nv))[0]
 
 
@@ -102,17 +102,18 @@ def test_docked_arm_dynamics_match_pinocchio(mode, kind):
         q = rng.uniform(-1, 1, 6)
         dock = FrameConstraint("dock", "tool0", None, mode).latch(r.model, r.model.createData(), q)
         v = rng.uniform(-1, 1, 6)
-        v = v - _correction(r, dock, q, v)
+        v = _project(r, dock, q, v)
         ours = our_acceleration(r, [dock], q, v)
         theirs = pinocchio_acceleration(r.model, q, v, rigid_contact(r.model, dock, kind))
         np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-8 * max(1.0, np.max(np.abs(ours))))
 
 
-def _correction(r, constraint, q, v):
+def _project(r, constraint, q, v):
+    """The velocity v moved M-orthogonally onto J v = 0."""
     data = r.model.createData()
     compute_kinematics(r.model, data, q, v)
     _, J, _ = stack((constraint,), r.model, data)
-    return M_weighted_correction(compute_M(r.model, data, q), J, v)
+    return compute_null_space_projector(compute_M(r.model, data, q), J) @ v
 
 
 def transition_cases():
@@ -130,7 +131,7 @@ def transition_cases():
             arm.model, arm.model.createData(), q
         )
         v = rng.uniform(-1, 1, 6)
-        v = v - _correction(arm, dock, q, v)
+        v = _project(arm, dock, q, v)
         data = arm.model.createData()
         compute_kinematics(arm.model, data, q, v)
         _, J_dock, _ = stack((dock,), arm.model, data)
@@ -187,16 +188,8 @@ def test_drift_with_and_without_stabilisation():
     r = robot("planar_fivebar")
     drift = {}
     for gains in [(0.0, 0.0), (10.0, 10.0)]:
-        result = simulate(
-            r,
-            Q_FIVEBAR,
-            np.zeros(4),
-            10.0,
-            [],
-            DOP853(1e-8, 1e-10),
-            constraints=[LOOP],
-            baumgarte=gains,
-        )
+        problem = Problem(r, Q_FIVEBAR, np.zeros(4), 10.0, constraints=(LOOP,), baumgarte=gains)
+        result = simulate(problem, DOP853(1e-8, 1e-10))
         drift[gains] = np.nanmax(result.drift, axis=0)
     # Measured (DOP853 rtol 1e-8): no stabilisation max |h| 5.4e-9 m, growing to the end;
     # Baumgarte (10, 10) 1.7e-10 m, 3e-13 m at the end.
@@ -210,7 +203,7 @@ def test_redundant_loop_rows_are_named():
     with pytest.raises(
         ConstraintError, match=r"'loop.y' depends on the others \(rank 2 of 3 rows\)"
     ):
-        simulate(r, Q_FIVEBAR, np.zeros(4), 1.0, [LockEvent(0.5, (), (full,))], DOP853())
+        simulate(Problem(r, Q_FIVEBAR, np.zeros(4), 1.0, (LockEvent(0.5, (), (full,)),)), DOP853())
     with pytest.raises(ConstraintError, match=r"'lock joint2' depends on the others"):
         check_independent(
             np.vstack([lock_jacobian(3, [1]), lock_jacobian(3, [1])]),
@@ -233,12 +226,10 @@ def penalty_run(stiffness):
     """The five-bar lock of joint_r1 replaced by a stiff critically damped spring [N m/rad]."""
     r = robot("planar_fivebar")
     q, v = Q_FIVEBAR.copy(), np.zeros(4)
-    before = simulate(r, q, v, 0.6, [], DOP853(1e-12, 1e-14), constraints=[LOOP])
+    before = simulate(Problem(r, q, v, 0.6, constraints=(LOOP,)), DOP853(1e-12, 1e-14))
     q, v = before.q[-1], before.v[-1]
     topology = Topology(r, [], q)
-    phase = Phase(
-        r, topology, [BrakeMode.FREE] * 4, {}, {}, constraints=(LOOP,), baumgarte=(10.0, 10.0)
-    )
+    phase = Phase(r, topology, constraints=(LOOP,), baumgarte=(10.0, 10.0))
     q_lock = q[2]
     damping = 2.0 * np.sqrt(stiffness * 1.0)  # critical for ~1 kg m^2 of effective inertia
 
@@ -257,14 +248,9 @@ def penalty_run(stiffness):
 def test_stiff_penalty_model_converges_to_the_consistent_jump():
     """The lock as a stiff spring-damper: the free rates 0.1 s later approach the exact run."""
     r = robot("planar_fivebar")
+    events = (LockEvent(0.6, ("joint_r1",)),)
     exact = simulate(
-        r,
-        Q_FIVEBAR,
-        np.zeros(4),
-        0.7,
-        [LockEvent(0.6, ("joint_r1",))],
-        DOP853(1e-12, 1e-14),
-        constraints=[LOOP],
+        Problem(r, Q_FIVEBAR, np.zeros(4), 0.7, events, constraints=(LOOP,)), DOP853(1e-12, 1e-14)
     )
     errors = []
     for k in (1e4, 1e6, 1e8):

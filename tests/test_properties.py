@@ -41,9 +41,10 @@ from conftest import SCENARIOS, robot
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from vtm_pin import Drive, Robot, Scenario, SimulationResult, load_robot, simulate
+from vtm_pin import Drive, Problem, Robot, Scenario, SimulationResult, load_robot, simulate
 from vtm_pin.analysis import compute_energy_momentum
 from vtm_pin.brakes import Brake
+from vtm_pin.friction import Coulomb, Stribeck
 from vtm_pin.integrators import DOP853, RK4
 from vtm_pin.report import build_summary, format_stopping, format_summary
 from vtm_pin.stop import Stop
@@ -200,9 +201,8 @@ class EStop:
 
     def run(self, integrator=INTEGRATOR) -> SimulationResult:
         r = arm(self.robot)
-        return simulate(
-            r, self.q0, self.v0, self.duration, [], integrator, "kkt", self.brakes, self.stop
-        )
+        problem = Problem(r, self.q0, self.v0, self.duration, brakes=self.brakes, stop=self.stop)
+        return simulate(problem, integrator)
 
 
 def _log_uniform(lo: float, hi: float) -> st.SearchStrategy[float]:
@@ -251,16 +251,24 @@ def _stop(draw, r: Robot, category: int | None = None, t: float | None = None) -
     )
 
 
-def _brake(joint: str, ratio: float, sliding: float, static: float, delay, ramp) -> Brake:
-    """A brake given joint-side torques [N m]; Brake takes them motor side."""
-    return Brake(
-        joint,
-        delay=delay,
-        ramp=ramp,
-        sliding_torque=sliding / ratio,
-        static_torque=static / ratio,
-        gear_ratio=ratio,
-    )
+def _brake(
+    joint: str, ratio: float, sliding: float, static: float, delay, ramp, stribeck=None
+) -> Brake:
+    """A brake given joint-side torques [N m]; Brake takes them motor side.
+
+    ``stribeck``: the Stribeck velocity [rad/s, motor side] of a Stribeck law, or None for
+    Coulomb friction.
+    """
+    figures = (sliding / ratio, static / ratio)
+    if stribeck is None:
+        return Brake(joint, delay=delay, friction=Coulomb(*figures, ramp=ramp))
+    law = Stribeck(*figures, ramp=ramp, stribeck_velocity=stribeck)
+    return Brake(joint, delay=delay, friction=law)
+
+
+#: The friction law of a drawn brake: Coulomb (None) twice as often as a Stribeck law, whose
+#: Stribeck velocity [rad/s, motor side] spans slow to fast drops.
+_STRIBECK = st.one_of(st.none(), st.none(), _log_uniform(1e-2, 1e2))
 
 
 @st.composite
@@ -273,11 +281,13 @@ def estops(draw) -> EStop:
         kind = draw(st.sampled_from(["finite", "finite", "finite", "ideal", "none"]))
         delay, ramp = draw(_times(0.1)), draw(_times(0.1))
         if kind == "ideal":
-            brakes.append(Brake(joint, delay=delay, gear_ratio=float(r.gear_ratio[i])))
+            brakes.append(Brake(joint, delay=delay))
         elif kind == "finite":
             sliding = draw(_log_uniform(1e-3, 1e4))
             static = sliding * draw(st.floats(1.0, 3.0))
-            brakes.append(_brake(joint, float(r.gear_ratio[i]), sliding, static, delay, ramp))
+            law = draw(_STRIBECK)
+            ratio = float(r.gear_ratio[i])
+            brakes.append(_brake(joint, ratio, sliding, static, delay, ramp, law))
     return EStop(
         robot=name,
         q0=draw(_configuration(r)),
@@ -305,11 +315,12 @@ def holding_estops(draw) -> EStop:
     for i, joint in enumerate(r.joints):
         delay, ramp = draw(_times(0.1)), draw(_times(0.1))
         if draw(st.sampled_from(["finite", "finite", "finite", "ideal"])) == "ideal":
-            brakes.append(Brake(joint, delay=delay, gear_ratio=float(r.gear_ratio[i])))
+            brakes.append(Brake(joint, delay=delay))
             continue
         sliding = need[i] * draw(_log_uniform(1.0, 100.0))
         static = sliding * draw(st.floats(1.0, 3.0))
-        brakes.append(_brake(joint, float(r.gear_ratio[i]), sliding, static, delay, ramp))
+        law = draw(_STRIBECK)
+        brakes.append(_brake(joint, float(r.gear_ratio[i]), sliding, static, delay, ramp, law))
     return EStop(
         robot=name,
         q0=draw(_configuration(r)),
@@ -344,7 +355,7 @@ def resting_estops(draw, worst_case: bool) -> EStop:
     brakes = []
     for i, joint in enumerate(r.joints):
         if draw(st.sampled_from(["finite", "finite", "finite", "ideal"])) == "ideal":
-            brakes.append(Brake(joint, gear_ratio=float(r.gear_ratio[i])))
+            brakes.append(Brake(joint))
             continue
         static = (hold[i] + 1e-3) * draw(_log_uniform(1.2, 10.0))
         sliding = static / draw(st.floats(1.0, 3.0))
@@ -376,7 +387,7 @@ def ramped_resting_estops(draw) -> EStop:
     for i, joint in enumerate(r.joints):
         delay = draw(_times(0.1))
         if draw(st.sampled_from(["finite", "finite", "finite", "ideal"])) == "ideal":
-            brakes.append(Brake(joint, delay=delay, gear_ratio=float(r.gear_ratio[i])))
+            brakes.append(Brake(joint, delay=delay))
             continue
         static = (g[i] + 1e-3) * draw(_log_uniform(1.2, 10.0))
         sliding = static / draw(st.floats(1.0, 3.0))
@@ -407,35 +418,24 @@ def ramped_resting_estops(draw) -> EStop:
 def _planar(q0, v0, torques, duration, stop=None, delays=(0.0,) * 3, ramps=(0.0,) * 3):
     """A planar_3r e-stop; ``torques[i]`` is (sliding, static) [N m] or None for ideal."""
     brakes = tuple(
-        Brake(f"joint{i + 1}", delay=d, ramp=r)
+        Brake(f"joint{i + 1}", delay=d)
         if torque is None
-        else Brake(
-            f"joint{i + 1}", delay=d, ramp=r, sliding_torque=torque[0], static_torque=torque[1]
-        )
+        else Brake(f"joint{i + 1}", delay=d, friction=Coulomb(*torque, ramp=r))
         for i, (torque, d, r) in enumerate(zip(torques, delays, ramps, strict=True))
     )
     stop = Stop(0.0) if stop is None else stop
     return EStop("planar_3r", np.array(q0, float), np.array(v0, float), stop, brakes, duration)
 
 
-#: RX160L joints and gear ratios, for the examples below (torques motor side, x ratio).
+#: RX160L joints, for the examples below (torques motor side, x the robot's gear ratio).
 _RX160L = tuple(f"joint_{i}" for i in range(1, 7))
-_RX160L_RATIO = (100.0, 100.0, 100.0, 50.0, 50.0, 50.0)
 
 
 def _rx160l(q0, v0, torques, duration, ramps=(0.0,) * 6):
     """An rx160l e-stop; ``torques[i]`` is (sliding, static) [N m] motor side or None."""
     brakes = tuple(
-        Brake(joint, ramp=ramp, gear_ratio=ratio)
-        if torque is None
-        else Brake(
-            joint,
-            ramp=ramp,
-            sliding_torque=torque[0],
-            static_torque=torque[1],
-            gear_ratio=ratio,
-        )
-        for joint, ratio, torque, ramp in zip(_RX160L, _RX160L_RATIO, torques, ramps, strict=True)
+        Brake(joint) if torque is None else Brake(joint, friction=Coulomb(*torque, ramp=ramp))
+        for joint, torque, ramp in zip(_RX160L, torques, ramps, strict=True)
     )
     return EStop("rx160l", np.array(q0, float), np.array(v0, float), Stop(0.0), brakes, duration)
 
@@ -455,9 +455,9 @@ EXAMPLE_LOCK_AT_T0 = EStop(
     np.array([0, 0, 0, 0, 0, 0, 0, 0, 1.0]),
     Stop(0.0),
     (
-        *(Brake(f"panda_joint{i}", sliding_torque=0.01, gear_ratio=100.0) for i in range(1, 6)),
-        Brake("panda_joint6", gear_ratio=100.0),  # ideal
-        Brake("panda_joint7", gear_ratio=100.0),  # ideal
+        *(Brake(f"panda_joint{i}", friction=Coulomb(0.01)) for i in range(1, 6)),
+        Brake("panda_joint6"),  # ideal
+        Brake("panda_joint7"),  # ideal
         Brake("panda_finger_joint1"),  # ideal
         Brake("panda_finger_joint2"),  # ideal
     ),
@@ -618,15 +618,9 @@ def check_report(case: EStop) -> None:
         source="property",
         name="property",
         description="randomized e-stop",
-        robot=r,
-        q0=case.q0,
-        v0=case.v0,
-        duration=case.duration,
+        problem=Problem(r, case.q0, case.v0, case.duration, brakes=case.brakes, stop=case.stop),
         integrator=INTEGRATOR,
         transition="kkt",
-        events=(),
-        brakes=case.brakes,
-        stop=case.stop,
         tool_frame=r.tool_frame,
     )
     summary = build_summary(
@@ -804,8 +798,8 @@ UR10_Q0 = np.array([0.0, -1.2, 1.4, -1.2, -1.57, 0.0])  # [rad], from that scena
 def ur10_category_one(v0: np.ndarray) -> EStop:
     r = arm("ur10")
     brakes = tuple(
-        Brake(j, delay=0.05, sliding_torque=s, static_torque=h, gear_ratio=float(ratio))
-        for j, (s, h), ratio in zip(r.joints, UR10_BRAKES, r.gear_ratio, strict=True)
+        Brake(j, delay=0.05, friction=Coulomb(s, h))
+        for j, (s, h) in zip(r.joints, UR10_BRAKES, strict=True)
     )
     stop = Stop(
         0.0, category=1, ramp_time=0.3, torque_limit=np.array([330, 330, 150, 56, 56, 56.0])

@@ -4,7 +4,15 @@ import pytest
 import scipy.integrate
 from conftest import robot
 
-from vtm_pin import RK4, LockEvent, SimulationError, compute_energy_momentum, simulate
+from vtm_pin import (
+    RK4,
+    LockEvent,
+    Problem,
+    ProblemError,
+    SimulationError,
+    compute_energy_momentum,
+    simulate,
+)
 from vtm_pin.integrators import DOP853
 
 Q0 = np.full(3, np.pi / 6)  # [rad], the paper's release pose
@@ -13,7 +21,8 @@ OFF_GRID_EVENTS = [LockEvent(0.80037, ("joint2",)), LockEvent(1.30071, ("joint3"
 
 
 def run(dt, events=PAPER_EVENTS, transition="kkt", duration=2.0):
-    return simulate(robot("planar_3r"), Q0, np.zeros(3), duration, events, RK4(dt), transition)
+    problem = Problem(robot("planar_3r"), Q0, np.zeros(3), duration, tuple(events))
+    return simulate(problem, RK4(dt), transition=transition)
 
 
 def closed_form_reference(events, rtol=1e-12):
@@ -144,11 +153,11 @@ def test_lock_at_time_zero_and_at_the_end():
 def test_bad_arguments_raise_simulation_errors():
     with pytest.raises(SimulationError, match="Unknown transition 'magic'; allowed: kkt"):
         run(1e-3, transition="magic")
-    with pytest.raises(SimulationError, match=r"Event at t = 3.0 s is outside \[0, 2.0\] s"):
+    with pytest.raises(ProblemError, match=r"'events\[0\].t': 3.0 s is outside \[0, duration"):
         run(1e-3, [LockEvent(3.0, ("joint1",))])
-    with pytest.raises(SimulationError, match="Joint 'joint1' is locked twice"):
+    with pytest.raises(ProblemError, match=r"'events\[1\].lock': joint 'joint1' locks again"):
         run(1e-3, [LockEvent(0.1, ("joint1",)), LockEvent(0.2, ("joint1",))])
-    with pytest.raises(SimulationError, match=r"Duration -1\.0 is not a positive number"):
+    with pytest.raises(ProblemError, match=r"'duration': -1\.0 is not a finite number of s > 0"):
         run(1e-3, duration=-1.0)
 
 
@@ -156,7 +165,7 @@ def test_bad_arguments_raise_simulation_errors():
 def test_progress_callback_sees_time_advance_and_changes_nothing(integrator):
     q0 = np.full(3, np.pi / 6)
     seen = []
-    args = (robot("planar_3r"), q0, np.zeros(3), 2.0, PAPER_EVENTS, integrator)
+    args = (Problem(robot("planar_3r"), q0, np.zeros(3), 2.0, tuple(PAPER_EVENTS)), integrator)
     plain = simulate(*args)
     watched = simulate(*args, progress=seen.append)
     np.testing.assert_array_equal(watched.q, plain.q)

@@ -24,6 +24,7 @@ if TYPE_CHECKING:
         ConstraintNotMet,
         InputError,
         JointNotFound,
+        ProblemError,
         RobotDataError,
         RobotLoadError,
         RobotNotFound,
@@ -37,9 +38,11 @@ if TYPE_CHECKING:
     )
     from .holonomic import FrameConstraint
     from .integrators import RK4
+    from .problem import LockEvent, Problem
+    from .results import BrakeEvent, EventRecord, SimulationResult
     from .robot import Drive, Robot, load_robot
     from .scenario import Scenario, build_scenario, load_scenario, run_scenario
-    from .simulation import EventRecord, LockEvent, SimulationResult, simulate
+    from .simulation import simulate
     from .topology import Topology
     from .transitions import TRANSITIONS, TransitionResult
 
@@ -59,6 +62,7 @@ _SOURCES = {
         "ConstraintNotMet",
         "InputError",
         "JointNotFound",
+        "ProblemError",
         "RobotDataError",
         "RobotLoadError",
         "RobotNotFound",
@@ -74,7 +78,9 @@ _SOURCES = {
     "integrators": ["RK4"],
     "robot": ["Drive", "Robot", "load_robot"],
     "scenario": ["Scenario", "build_scenario", "load_scenario", "run_scenario"],
-    "simulation": ["EventRecord", "LockEvent", "SimulationResult", "simulate"],
+    "results": ["BrakeEvent", "EventRecord", "SimulationResult"],
+    "problem": ["LockEvent", "Problem"],
+    "simulation": ["simulate"],
     "topology": ["Topology"],
     "transitions": ["TRANSITIONS", "TransitionResult"],
 }
@@ -84,6 +90,7 @@ __all__ = [
     "RK4",
     "TRANSITIONS",
     "BrakeError",
+    "BrakeEvent",
     "ConstraintError",
     "ConstraintNotMet",
     "Drive",
@@ -93,6 +100,8 @@ __all__ = [
     "InputError",
     "JointNotFound",
     "LockEvent",
+    "Problem",
+    "ProblemError",
     "Robot",
     "RobotDataError",
     "RobotLoadError",

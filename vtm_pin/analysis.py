@@ -8,8 +8,8 @@ import numpy as np
 import pinocchio as pin
 
 from .dynamics import compute_M
+from .results import SimulationResult
 from .robot import Robot
-from .simulation import SimulationResult
 
 
 @dataclass(frozen=True)

@@ -6,19 +6,26 @@ opposes the motion. A braked joint at rest, whether it engaged at rest, slid to 
 stuck, goes through one decision (Modelica's start-forward / start-backward conditions): it
 is ``stuck`` (a joint lock) while the torque needed to hold it is within the static torque,
 else it starts sliding in the direction the load drives it (:func:`mode_of_load`). A stuck
-joint whose holding torque exceeds the static torque ``slips`` back to sliding. The normal
-force, and with it both torques, may rise linearly over ``ramp`` seconds after engagement. A
-brake with infinite torque is ideal: it locks its joint at engagement with the paper's
-momentum-consistent jump.
+joint whose holding torque exceeds the static torque ``slips`` back to sliding. The torques
+come from the brake's friction law (:mod:`vtm_pin.friction`: Coulomb or Stribeck, with a
+normal-force ramp); an ideal brake (:class:`~vtm_pin.friction.IdealLock`) locks its joint at
+engagement with the paper's momentum-consistent jump.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from enum import IntEnum
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import Enum, IntEnum
+from typing import Protocol
+
+import numpy as np
 
 from .exceptions import BrakeError
+from .friction import FrictionLaw, IdealLock
+from .integrators.base import StateEvent
+from .results import BrakeEvent, BrakeEventKind
 
 #: Rate below which a braked joint counts as at rest [rad/s, m/s for prismatic joints]: well
 #: above the integrator's round-off and event-location residuals (<= 1e-12 rad/s measured),
@@ -48,63 +55,50 @@ class BrakeMode(IntEnum):
 
 @dataclass(frozen=True)
 class Brake:
-    """One joint's brake; torques are given on the motor side and multiplied by the gear ratio.
+    """One joint's brake: when it engages, and the friction law it follows (motor side).
 
     Attributes:
         joint: Joint name.
         delay: Engagement delay after the brake signal [s], >= 0.
-        ramp: Time for the normal force to rise linearly to its full value [s], >= 0.
-        sliding_torque: Kinetic (sliding) torque, motor side [N m], > 0; ``inf`` = ideal.
-        static_torque: Static holding torque, motor side [N m], >= sliding torque; defaults to
-            the sliding torque.
-        gear_ratio: Motor angle per joint angle [-]; joint-side torque = ratio x motor torque.
+        friction: The friction law, motor side (:class:`~vtm_pin.friction.Coulomb`,
+            :class:`~vtm_pin.friction.Stribeck`); :class:`~vtm_pin.friction.IdealLock` (the
+            default) locks the joint at engagement.
+
+    Joint-side torques are the law's times the joint's gear ratio, which the robot holds
+    (:attr:`vtm_pin.robot.Robot.gear_ratio`) and the methods below take as an argument.
 
     Raises:
-        BrakeError: A figure is out of range (one line naming the joint and the value).
+        BrakeError: The delay is out of range.
     """
 
     joint: str
     delay: float = 0.0
-    ramp: float = 0.0
-    sliding_torque: float = math.inf
-    static_torque: float | None = None
-    gear_ratio: float = 1.0
+    friction: FrictionLaw = field(default_factory=IdealLock)
 
     def __post_init__(self) -> None:
-        name = f"Brake on '{self.joint}'"
-        if not (self.sliding_torque > 0.0):
-            raise BrakeError(f"{name}: sliding torque {self.sliding_torque} N m is not > 0")
-        if self.static_torque is not None and not (self.static_torque >= self.sliding_torque):
-            raise BrakeError(
-                f"{name}: static torque {self.static_torque} N m is below the sliding torque "
-                f"{self.sliding_torque} N m"
-            )
         if not (self.delay >= 0.0) or not math.isfinite(self.delay):
-            raise BrakeError(f"{name}: delay {self.delay} s is not a finite number >= 0")
-        if not (self.ramp >= 0.0) or not math.isfinite(self.ramp):
-            raise BrakeError(f"{name}: ramp {self.ramp} s is not a finite number >= 0")
-        if not (self.gear_ratio > 0.0):
-            raise BrakeError(f"{name}: gear ratio {self.gear_ratio} is not > 0")
+            raise BrakeError(
+                f"Brake on '{self.joint}': delay {self.delay} s is not a finite number >= 0"
+            )
 
     @property
     def ideal(self) -> bool:
-        """Infinite torque: the joint locks at engagement."""
-        return math.isinf(self.sliding_torque)
+        """The joint locks at engagement (an ideal lock, not a friction law)."""
+        return isinstance(self.friction, IdealLock)
 
-    def factor(self, elapsed: float) -> float:
-        """Normal-force factor in [0, 1], ``elapsed`` seconds after engagement."""
-        if self.ramp == 0.0:
-            return 1.0
-        return min(1.0, max(0.0, elapsed / self.ramp))
+    def sliding(self, elapsed: float, v: float, ratio: float) -> float:
+        """Joint-side kinetic torque magnitude [N m], ``elapsed`` s after engagement.
 
-    def sliding(self, elapsed: float) -> float:
-        """Joint-side kinetic torque magnitude [N m] ``elapsed`` s after engagement."""
-        return self.gear_ratio * self.sliding_torque * self.factor(elapsed)
+        Args:
+            elapsed: Time since engagement [s].
+            v: Joint rate [rad/s]; the law sees the motor speed ratio |v|.
+            ratio: The joint's gear ratio [-].
+        """
+        return ratio * self.friction.sliding(elapsed, ratio * abs(v))
 
-    def static(self, elapsed: float) -> float:
-        """Joint-side static (holding) torque limit [N m] ``elapsed`` s after engagement."""
-        limit = self.sliding_torque if self.static_torque is None else self.static_torque
-        return self.gear_ratio * limit * self.factor(elapsed)
+    def static(self, elapsed: float, ratio: float) -> float:
+        """Joint-side static (holding) torque limit [N m], ``elapsed`` s after engagement."""
+        return ratio * self.friction.breakaway(elapsed)
 
 
 def mode_of_motion(v: float) -> BrakeMode | None:
@@ -127,3 +121,279 @@ def mode_of_load(hold: float) -> BrakeMode:
         hold: Torque needed to hold the joint at rest [N m]; the load acts against it.
     """
     return BrakeMode.BACKWARD if hold > 0.0 else BrakeMode.FORWARD
+
+
+class StateEventKind(Enum):
+    """The brake state events of a phase."""
+
+    ZERO_VELOCITY = "zero_velocity"  # a sliding joint reaches v = 0
+    SLIP = "slip"  # a stuck joint's holding torque reaches its static limit
+
+
+@dataclass(frozen=True)
+class BrakeStateEvent:
+    """A brake state event of a phase and what it means.
+
+    Attributes:
+        kind: ``ZERO_VELOCITY`` (a sliding joint reaches v = 0) or ``SLIP`` (a stuck
+            joint's holding torque reaches its static limit).
+        joint: Index of the joint concerned.
+        event: The event function for the integrator.
+    """
+
+    kind: StateEventKind
+    joint: int
+    event: StateEvent
+
+
+class BrakeWorld(Protocol):
+    """What the brake state machine needs from the hybrid loop at one instant.
+
+    Attributes:
+        v: Joint rates [rad/s]; the machine zeroes those of joints it finds at rest.
+        locked: Indices of the locked joints; the machine removes a joint that slips.
+    """
+
+    v: np.ndarray
+    locked: list[int]
+
+    def holding_torque(self, t: float, locked: Sequence[int]) -> np.ndarray:
+        """Torques [N m] the locks of ``locked`` exert, with the current modes (0 if free)."""
+        ...
+
+    def accelerations(self, t: float) -> np.ndarray:
+        """Joint accelerations [rad/s^2] with the current locks and modes (0 if locked)."""
+        ...
+
+    def stick(self, t: float, joints: Sequence[int]) -> None:
+        """Lock ``joints`` (at rest) with the momentum-consistent transition rule."""
+        ...
+
+
+class BrakeMachine:
+    """The brakes of one run: their modes, engagement times and events, and their rules.
+
+    Modelica's ``Brake`` for every braked joint, decided together at each event (see
+    :meth:`settle`); the state events that end a phase come from :meth:`state_events`.
+
+    Args:
+        brakes: Brake per joint index.
+        joints: Joint names (for the events).
+        ratio: Gear ratio per joint [-] (the robot's).
+    """
+
+    def __init__(
+        self, brakes: Mapping[int, Brake], joints: Sequence[str], ratio: np.ndarray
+    ) -> None:
+        self.brakes = dict(brakes)
+        self.joints = tuple(joints)
+        self.ratio = np.asarray(ratio, dtype=float)
+        self.modes = [BrakeMode.FREE] * len(self.joints)
+        self.engaged: dict[int, float] = {}
+        self.events: list[BrakeEvent] = []
+        self._v_event: dict[int, float] = {}  # rates of the resting joints before zeroing
+
+    def engage(self, t: float, i: int, v: float, locked: bool) -> bool:
+        """Brake ``i`` engages at rate ``v`` [rad/s]; whether the joint must lock ideally.
+
+        A joint moving faster than :data:`REST_RATE` starts sliding against its motion; a
+        joint at rest is left to :meth:`settle`, which decides stick or slip once every
+        event of this instant has been applied. A joint already ``locked`` stays locked.
+        """
+        self.engaged[i] = t
+        if locked:
+            return False
+        name = self.joints[i]
+        if self.brakes[i].ideal:
+            self.modes[i] = BrakeMode.LOCKED
+            self.events.append(BrakeEvent(t, name, BrakeEventKind.LOCK, v))
+            return True
+        self.events.append(BrakeEvent(t, name, BrakeEventKind.ENGAGE, v))
+        self.modes[i] = mode_of_motion(v) or BrakeMode.FREE
+        return False
+
+    def static(self, t: float, i: int) -> float:
+        """Joint ``i``'s static torque limit at ``t``, joint side [N m]."""
+        return self.brakes[i].static(t - self.engaged[i], float(self.ratio[i]))
+
+    def settle(self, t: float, world: BrakeWorld, due: Sequence[int] = ()) -> None:
+        """Bring every engaged brake's mode in line with the state at ``t``.
+
+        One rule for every braked joint (Modelica's ``Brake``), applied to all of them at
+        once, as an active set for Coulomb friction:
+
+        1. A sliding joint whose rate a jump reversed slides the other way.
+        2. Every joint at rest (engaged at rest, slid to rest, or stuck) is held; while some
+           holding torque exceeds its static limit, the worst-loaded joint (largest
+           |hold| / limit) is released to slide in the direction of its load, and the
+           others are held again. Those still held stick, in one consistent lock.
+        3. A released joint must then accelerate the way it slides, now that the others
+           slide too; if it would not, it slides the other way, or, if neither direction
+           is consistent, its static friction holds it and it sticks.
+
+        A released joint stays released at this instant, so the decisions end.
+
+        Args:
+            t: Time [s].
+            world: The hybrid loop's state and dynamics.
+            due: Joints whose state event fired now (reached v = 0, or hit the static
+                limit): a stuck one among them is released even within round-off of it.
+        """
+        self._follow_reversals(t, world)
+        resting = self._resting(world)
+        if resting:
+            forced = {i for i in due if i in world.locked}  # at the static limit now
+            released = self._hold_or_release(t, world, resting, forced)
+            self._check_released(t, world, released)
+
+    def state_events(
+        self,
+        free: Sequence[int],
+        locked: Sequence[int],
+        holding: Callable[[float, np.ndarray], np.ndarray],
+    ) -> list[BrakeStateEvent]:
+        """The state events that end a phase: sliding joints reaching rest, stuck ones slipping.
+
+        Args:
+            free: Free joint indices, in the order of the phase state y = (q_f, v_f, ...).
+            locked: Locked joint indices.
+            holding: Holding torques [N m] of all joints at (t, y) in this phase.
+        """
+        events = []
+        k = len(free)
+        for f, j in enumerate(free):
+            if self.modes[j].sliding:
+                # Sliding forward ends when v falls through 0; backward when it rises.
+                direction = -1 if self.modes[j] is BrakeMode.FORWARD else 1
+
+                def rate(t: float, y: np.ndarray, i: int = k + f) -> float:
+                    return float(y[i])
+
+                kind = StateEventKind.ZERO_VELOCITY
+                events.append(BrakeStateEvent(kind, int(j), StateEvent(rate, direction)))
+        for j in locked:
+            brake = self.brakes.get(j)
+            if self.modes[j] is BrakeMode.STUCK and brake is not None and not brake.ideal:
+
+                def margin(t: float, y: np.ndarray, j: int = j) -> float:
+                    return self.static(t, j) - abs(holding(t, y)[j])
+
+                events.append(BrakeStateEvent(StateEventKind.SLIP, j, StateEvent(margin, -1)))
+        return events
+
+    def _hold_or_release(
+        self, t: float, world: BrakeWorld, resting: list[int], forced: set[int]
+    ) -> list[int]:
+        """Step 2 of :meth:`settle`: release the worst-loaded joints, lock the rest."""
+        limits = {i: self.static(t, i) for i in resting}
+        released = []
+        while True:
+            hold = world.holding_torque(t, sorted({*world.locked, *resting}))
+            i = _worst_loaded(resting, hold, limits, forced)
+            if i is None:
+                break
+            self._release(t, world, i, float(hold[i]), limits[i])
+            resting.remove(i)
+            forced.discard(i)
+            released.append(i)
+        self._stick(t, world, [i for i in resting if i not in world.locked], hold, limits)
+        return released
+
+    def _check_released(self, t: float, world: BrakeWorld, released: list[int]) -> None:
+        """Step 3 of :meth:`settle`: flip or stick released joints that would not slide."""
+        for _ in range(2 * len(released)):
+            wrong = self._against_motion(t, world, released)
+            if wrong is None:
+                return
+            self.modes[wrong] = mode_of_motion(-self.modes[wrong].sign) or BrakeMode.FREE
+            if self._against_motion(t, world, [wrong]) is None:
+                self.events.append(BrakeEvent(t, self.joints[wrong], BrakeEventKind.REVERSE, 0.0))
+                continue
+            hold = world.holding_torque(t, [*world.locked, wrong])
+            self._stick(t, world, [wrong], hold, {wrong: self.static(t, wrong)})
+
+    def _against_motion(self, t: float, world: BrakeWorld, joints: Sequence[int]) -> int | None:
+        """The first of ``joints`` (free, sliding from rest) accelerating against its mode."""
+        a = world.accelerations(t)
+        for i in joints:
+            if i not in world.locked and a[i] * self.modes[i].sign < 0.0:
+                return i
+        return None
+
+    def _stick(
+        self,
+        t: float,
+        world: BrakeWorld,
+        joints: Sequence[int],
+        hold: np.ndarray,
+        limits: Mapping[int, float],
+    ) -> None:
+        """Joints at rest whose brakes hold them stick: one consistent lock."""
+        for i in joints:
+            self.events.append(
+                BrakeEvent(
+                    t,
+                    self.joints[i],
+                    BrakeEventKind.STICK,
+                    self._v_event[i],
+                    float(hold[i]),
+                    limits[i],
+                )
+            )
+            self.modes[i] = BrakeMode.STUCK
+        if joints:
+            world.stick(t, joints)
+
+    def _follow_reversals(self, t: float, world: BrakeWorld) -> None:
+        """Sliding joints whose rate has the other sign (after a jump) slide the other way."""
+        for i in self.engaged:
+            mode, moving = self.modes[i], mode_of_motion(float(world.v[i]))
+            if i in world.locked or moving is None or mode is moving:
+                continue
+            if mode.sliding or mode is BrakeMode.FREE:
+                self.modes[i] = moving
+                v = float(world.v[i])
+                self.events.append(BrakeEvent(t, self.joints[i], BrakeEventKind.REVERSE, v))
+
+    def _resting(self, world: BrakeWorld) -> list[int]:
+        """Braked joints at rest that need the stick/slip decision (their rates set to 0).
+
+        Stuck joints, and engaged joints at rest (|v| <= REST_RATE) that are free or
+        sliding; not ideal brakes, nor joints locked by a prescribed lock.
+        """
+        resting = []
+        self._v_event.clear()
+        for i in sorted(self.engaged):
+            mode = self.modes[i]
+            if mode is BrakeMode.LOCKED or (i in world.locked and mode is not BrakeMode.STUCK):
+                continue
+            if mode is BrakeMode.STUCK or mode_of_motion(float(world.v[i])) is None:
+                resting.append(i)
+                self._v_event[i] = float(world.v[i])
+                world.v[i] = 0.0
+        return resting
+
+    def _release(self, t: float, world: BrakeWorld, i: int, hold: float, limit: float) -> None:
+        """Joint ``i`` cannot be held: it slides in the direction of its load."""
+        if i in world.locked:
+            kind = BrakeEventKind.SLIP
+            world.locked = [j for j in world.locked if j != i]
+        else:
+            kind = BrakeEventKind.REVERSE if self.modes[i].sliding else BrakeEventKind.START
+        self.modes[i] = mode_of_load(hold)
+        self.events.append(BrakeEvent(t, self.joints[i], kind, self._v_event[i], hold, limit))
+
+
+def _worst_loaded(
+    resting: Sequence[int], hold: np.ndarray, limits: Mapping[int, float], forced: set[int]
+) -> int | None:
+    """The held joint to release first: a forced one, else the largest |hold| / limit > 1."""
+    if forced:
+        return min(forced)
+    worst, ratio = None, 1.0
+    for i in resting:
+        if abs(hold[i]) > limits[i]:
+            r = math.inf if limits[i] == 0.0 else abs(hold[i]) / limits[i]
+            if worst is None or r > ratio:
+                worst, ratio = i, r
+    return worst

@@ -102,12 +102,40 @@ class RobotDataError(InputError):
     """A robot data file (``<name>.yaml`` beside a URDF) is malformed."""
 
 
+class OutputError(VtmError):
+    """The results of a run cannot be written into their folder.
+
+    Attributes:
+        folder: The output folder asked for.
+        problem: Why it cannot be written, one line.
+    """
+
+    def __init__(self, folder: str, problem: str) -> None:
+        self.folder = folder
+        self.problem = problem
+        super().__init__(f"Cannot write the results: {problem}")
+
+
 class TransitionError(VtmError):
     """A transition could not be computed (redundant or rank-deficient constraints)."""
 
 
 class SimulationError(VtmError):
     """The simulation diverged or was asked for something it cannot do."""
+
+
+class ProblemError(SimulationError):
+    """A simulation problem the simulation cannot run; names the key in scenario terms.
+
+    Attributes:
+        key: The key path (``events[1].lock``, ``brakes``, ``stop.t``).
+        problem: What is wrong and what is allowed, one line.
+    """
+
+    def __init__(self, key: str, problem: str) -> None:
+        self.key = key
+        self.problem = problem
+        super().__init__(f"'{key}': {problem}")
 
 
 class StepLimitError(SimulationError):

@@ -7,44 +7,16 @@ the angular impulse each brake's friction has delivered to its joint [N m s] (n 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from enum import Enum
-
 import numpy as np
 import pinocchio as pin
 
-from .brakes import Brake, BrakeMode
+from .brakes import BrakeMachine, BrakeMode
+from .drives import DriveLaw, DriveOff
 from .dynamics import compute_M
 from .holonomic import FrameConstraint, compute_kinematics, stack
-from .integrators import StateEvent
 from .robot import Robot
-from .stop import Stop
 from .topology import Topology
-
-
-class DriveLaw(Enum):
-    """What the joint drives do during a phase."""
-
-    OFF = "off"
-    HOLD = "hold"  # before the stop signal: hold the joint rates constant
-    RAMP = "ramp"  # category-1 stop: ramp the rates to zero, torque-limited
-
-
-@dataclass(frozen=True)
-class PhaseEvent:
-    """A state event of a phase and what it means.
-
-    Attributes:
-        kind: ``"zero_velocity"`` (a sliding joint reaches v = 0) or ``"slip"`` (a stuck
-            joint's holding torque reaches its static limit).
-        joint: Index of the joint concerned.
-        event: The event function for the integrator.
-    """
-
-    kind: str
-    joint: int
-    event: StateEvent
+from .transitions import solve_saddle_point
 
 
 class Phase:
@@ -53,54 +25,47 @@ class Phase:
     Args:
         robot: The robot.
         topology: Locked joints and the reduced model of the free ones.
-        modes: Brake mode per joint.
-        brakes: Brake per joint index (joints without a brake are absent).
-        engaged: Engagement time per braked joint index [s].
-        drive: Drive law.
+        brakes: The brake state machine, whose modes at this instant the phase keeps;
+            None without brakes.
+        drive: Drive law (:mod:`vtm_pin.drives`); drives off by default.
         drive_on: Per joint, whether its drive acts.
-        stop: The stop (for the category-1 ramp); None without a stop.
-        v_signal: Joint rates at the stop signal (category-1 ramp reference) [rad/s].
+        constraints: Active frame constraints.
+        baumgarte: Baumgarte gains (alpha, beta) [1/s] of the frame constraints.
     """
 
     def __init__(
         self,
         robot: Robot,
         topology: Topology,
-        modes: Sequence[BrakeMode],
-        brakes: Mapping[int, Brake],
-        engaged: Mapping[int, float],
-        drive: DriveLaw = DriveLaw.OFF,
+        brakes: BrakeMachine | None = None,
+        drive: DriveLaw | None = None,
         drive_on: np.ndarray | None = None,
-        stop: Stop | None = None,
-        v_signal: np.ndarray | None = None,
         constraints: tuple[FrameConstraint, ...] = (),
         baumgarte: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         self.robot = robot
         self.topology = topology
-        self.modes = tuple(modes)
-        self.brakes = dict(brakes)
-        self.engaged = dict(engaged)
+        self.machine = brakes
+        self.modes = tuple(brakes.modes) if brakes else (BrakeMode.FREE,) * robot.nv
+        self.engaged = dict(brakes.engaged) if brakes else {}
         n = robot.nv
         free = topology.free
         self.k = topology.n_free
-        self.drive = drive
+        self.drive = DriveOff() if drive is None else drive
         on = np.zeros(n, dtype=bool) if drive_on is None else np.asarray(drive_on, dtype=bool)
-        self._drive_f = on[free] if drive is not DriveLaw.OFF else np.zeros(self.k, dtype=bool)
+        self._drive_f = on[free] if self.drive.acts else np.zeros(self.k, dtype=bool)
         self._sliding = [
-            (f, int(j), self.brakes[int(j)])
+            (f, int(j), brakes.brakes[int(j)])
             for f, j in enumerate(free)
-            if self.modes[int(j)].sliding
+            if brakes and self.modes[int(j)].sliding
         ]
         self._signs = {int(j): self.modes[int(j)].sign for _, j, _ in self._sliding}
-        self.stop = stop
-        if drive is DriveLaw.RAMP:
-            assert stop is not None and v_signal is not None and stop.torque_limit is not None
-            assert stop.ramp_time is not None
-            self._v_signal_f = np.asarray(v_signal)[free]
-            self._limit_f = np.asarray(stop.torque_limit, dtype=float)[free]
         self._full_data = robot.model.createData()
-        self.events = self._build_events()
+        self.events = (
+            brakes.state_events(free.tolist(), topology.locked, self.holding_torque)
+            if brakes
+            else []
+        )
         #: No torque acts: y is (q_f, v_f) only and the accumulators stay constant.
         self.constraints = tuple(constraints)
         self.baumgarte = baumgarte
@@ -123,23 +88,13 @@ class Phase:
         k = self.k
         tau_drive = np.zeros(k)
         if self._drive_f.any():
-            model, data = self.topology.model, self.topology.data
-            if self.drive is DriveLaw.HOLD:
-                tau = pin.rnea(model, data, q_f, v_f, np.zeros(k))
-                tau_drive = np.where(self._drive_f, tau, 0.0)
-            else:
-                assert self.stop is not None and self.stop.ramp_time is not None
-                s = (t - self.stop.t) / self.stop.ramp_time
-                ramping = s < 1.0
-                v_ref = self._v_signal_f * max(0.0, 1.0 - s)
-                a_ref = -self._v_signal_f / self.stop.ramp_time if ramping else 0.0 * v_f
-                a_des = a_ref + self.stop.gain * (v_ref - v_f)
-                tau = pin.rnea(model, data, q_f, v_f, a_des)
-                tau = np.clip(tau, -self._limit_f, self._limit_f)
-                tau_drive = np.where(self._drive_f, tau, 0.0)
+            topology = self.topology
+            tau = self.drive.torques(topology.model, topology.data, t, q_f, v_f, topology.free)
+            tau_drive = np.where(self._drive_f, tau, 0.0)
         tau_brake = np.zeros(k)
+        ratio = self.robot.gear_ratio
         for f, j, brake in self._sliding:
-            tau_brake[f] = -self._signs[j] * brake.sliding(t - self.engaged[j])
+            tau_brake[f] = -self._signs[j] * brake.sliding(t - self.engaged[j], v_f[f], ratio[j])
         return tau_drive, tau_brake
 
     def _rhs(self, t: float, y: np.ndarray) -> np.ndarray:
@@ -183,16 +138,10 @@ class Phase:
         free = self.topology.free
         Jf = J[:, free]
         alpha, beta = self.baumgarte
-        m = Jf.shape[0]
-        K = np.zeros((k + m, k + m))
-        K[:k, :k] = M[np.ix_(free, free)]
-        K[:k, k:] = Jf.T
-        K[k:, :k] = Jf
-        rhs = np.concatenate(
-            [tau_f - b[free], -(gamma + 2.0 * alpha * (Jf @ y[k : 2 * k]) + beta**2 * h)]
+        c = -(gamma + 2.0 * alpha * (Jf @ y[k : 2 * k]) + beta**2 * h)
+        return solve_saddle_point(
+            M[np.ix_(free, free)], Jf, c, "Constrained dynamics", f=tau_f - b[free]
         )
-        x = np.linalg.solve(K, rhs)
-        return x[:k], x[k:]
 
     def constraint_drift(self, y: np.ndarray) -> np.ndarray:
         """Max |h| [m, rad] and max |J v| [m/s, rad/s] of the frame constraints per row of y.
@@ -232,25 +181,3 @@ class Phase:
         out = np.zeros(self.robot.nv)
         out[list(self.topology.locked)] = tau[list(self.topology.locked)]
         return out
-
-    def _build_events(self) -> list[PhaseEvent]:
-        events = []
-        k = self.k
-        for f, j, _ in self._sliding:
-            # Sliding forward ends when v falls through 0; backward when it rises through 0.
-            direction = -1 if self.modes[j] is BrakeMode.FORWARD else 1
-
-            def rate(t: float, y: np.ndarray, i: int = k + f) -> float:
-                return float(y[i])
-
-            events.append(PhaseEvent("zero_velocity", j, StateEvent(rate, direction)))
-        for j in self.topology.locked:
-            brake = self.brakes.get(j)
-            if self.modes[j] is BrakeMode.STUCK and brake is not None and not brake.ideal:
-
-                def margin(t: float, y: np.ndarray, j: int = j, brake: Brake = brake) -> float:
-                    hold = self.holding_torque(t, y)[j]
-                    return brake.static(t - self.engaged[j]) - abs(hold)
-
-                events.append(PhaseEvent("slip", j, StateEvent(margin, -1)))
-        return events

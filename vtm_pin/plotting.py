@@ -6,7 +6,8 @@ headless and show in notebooks alike. No numerics happen here.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -14,10 +15,13 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from .analysis import EnergyMomentum
-from .benchmark import COST_KEYS, WorkPoint
 from .brakes import BrakeMode
-from .simulation import SimulationResult
+from .drawing import plot_poses
+from .results import SimulationResult
 from .stopping import StoppingReport
+
+if TYPE_CHECKING:
+    from .pipeline import RunOutput
 
 Runs = Mapping[str, tuple[SimulationResult, EnergyMomentum]]
 Values = Callable[[SimulationResult, EnergyMomentum], np.ndarray]
@@ -130,34 +134,31 @@ def plot_constraint_drift(result: SimulationResult) -> Figure:
     return fig
 
 
-def plot_work_precision(points: Sequence[WorkPoint], title: str) -> Figure:
-    """Wall time [ms] against final-time error [rad], one line per method (log-log)."""
-    fig = Figure(figsize=(7, 5), layout="constrained")
-    ax = fig.add_subplot()
-    for method in dict.fromkeys(p.method for p in points):
-        pts = sorted((p.error, p.wall_time) for p in points if p.method == method)
-        ax.loglog([e for e, _ in pts], [1e3 * w for _, w in pts], "o-", label=method)
-    ax.set_xlabel("error at final time max |q - q_ref| [rad]")
-    ax.set_ylabel("wall time [ms] (median)")
-    ax.set_title(f"Work-precision: {title}")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend()
-    return fig
+def plot_run(output: RunOutput) -> dict[str, Figure]:
+    """The figures ``vtm-pin run`` saves for a run, by PNG file name.
 
-
-def plot_transition_costs(rows: Sequence[Mapping[str, float]], title: str) -> Figure:
-    """Median time [us] of one transition per rule and one right-hand side, against n."""
-    fig = Figure(figsize=(8, 5), layout="constrained")
-    ax = fig.add_subplot()
-    ns = [r["n"] for r in rows]
-    for key in COST_KEYS:
-        ax.loglog(ns, [1e6 * r[key] for r in rows], "o-", label=key)
-    ax.set_xlabel("number of joints n")
-    ax.set_ylabel("median time [us]")
-    ax.set_title(title)
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize="small")
-    return fig
+    Joint angles, rates, momenta, energy and poses always; motor angles and rates when a gear
+    ratio is set; the constraint drift with frame constraints; brake states and the tool path
+    with a stop. Compared rules are overlaid (dashed).
+    """
+    runs, result, scenario = output.runs, output.result, output.scenario
+    figures = {
+        "joint_angles.png": plot_joint_angles(runs),
+        "joint_rates.png": plot_joint_rates(runs),
+        "momenta.png": plot_momenta(runs),
+        "energy.png": plot_energy(runs),
+        "poses.png": plot_poses(scenario.robot, output.results, scenario.tool_frame),
+    }
+    ratio = scenario.robot.gear_ratio
+    if np.any(ratio != 1.0):
+        figures["motor_angles.png"] = plot_joint_angles(runs, ratio)
+        figures["motor_rates.png"] = plot_joint_rates(runs, ratio)
+    if np.any(np.isfinite(result.drift)):
+        figures["constraint_drift.png"] = plot_constraint_drift(result)
+    if output.stopping:
+        figures["brakes.png"] = plot_brake_states(result)
+        figures["tcp_path.png"] = plot_tcp_path(output.stopping)
+    return figures
 
 
 def _shade_modes(ax: Axes, t: np.ndarray, modes: np.ndarray) -> None:

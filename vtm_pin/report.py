@@ -12,8 +12,8 @@ import numpy as np
 
 from .analysis import EnergyMomentum
 from .integrators import Integrator
+from .results import BrakeEvent, SimulationResult
 from .scenario import Scenario
-from .simulation import BrakeEvent, SimulationResult
 from .stopping import StoppingReport
 
 #: Units of the quantities in summary.json and trajectory.csv.
@@ -70,6 +70,10 @@ def build_summary(
             "drive_work": drive_work,
             "balance_residual": mechanical_loss - (lost_at_events + brake_work - drive_work),
         },
+        "brakes": [
+            {"joint": b.joint, "delay": b.delay, "friction": b.friction.describe()}
+            for b in scenario.brakes
+        ],
         "brake_events": [_brake_event(e) for e in result.brake_events],
         "constraints": [c.name for c in scenario.constraints],
         "constraint_drift": {
@@ -110,7 +114,7 @@ def _brake_event(event: BrakeEvent) -> dict[str, Any]:
     return {
         "t": event.t,
         "joint": event.joint,
-        "kind": event.kind,
+        "kind": event.kind.value,
         "v": event.v,
         "holding_torque": _num(event.holding_torque),
         "static_torque": _num(event.static_torque),
@@ -215,7 +219,7 @@ def _event_summary(result: SimulationResult, i: int) -> dict[str, Any]:
     free_after = [j for j in result.joints if j not in event.lock + event.locked_before]
     return {
         "t": event.t,
-        "kind": event.kind,
+        "kind": event.kind.value,
         "lock": list(event.lock),
         "locked_before": list(event.locked_before),
         "q": event.q.tolist(),
@@ -223,9 +227,9 @@ def _event_summary(result: SimulationResult, i: int) -> dict[str, Any]:
         "v_plus": tr.v_plus.tolist(),
         "activate": list(event.activate),
         "impulse": (-tr.Lambda2).tolist(),
-        "impulse_rows": list(event.rows[tr.m1 :]),
+        "impulse_rows": [str(label) for label in event.rows[tr.m1 :]],
         "impulse_persistent": (-tr.Lambda1).tolist(),
-        "impulse_persistent_rows": list(event.rows[: tr.m1]),
+        "impulse_persistent_rows": [str(label) for label in event.rows[: tr.m1]],
         "energy_loss": tr.energy_loss,
         "free_joints": free_after,
         "p_free_minus": tr.p_free_minus.tolist(),

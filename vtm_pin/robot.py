@@ -10,6 +10,7 @@ import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +27,9 @@ from .exceptions import (
 )
 from .inputs import check_schema, number, read_yaml
 
-#: Folder of the URDF models shipped with the project.
-ROBOTS_DIR = Path(__file__).resolve().parent.parent / "robots"
+#: Folder of the URDF models shipped with the project: ``robots/`` at the top of the source
+#: tree, installed as the package data ``vtm_pin.robots`` (so an installed wheel has it too).
+ROBOTS_DIR = Path(str(resources.files("vtm_pin.robots")))
 
 #: Largest gear ratio [-] and rotor inertia (motor side) [kg m^2] accepted for a drive.
 MAX_GEAR_RATIO, MAX_ROTOR_INERTIA = 1.0e4, 100.0

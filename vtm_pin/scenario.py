@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -17,17 +18,21 @@ from .exceptions import (
     ConstraintError,
     ConstraintNotMet,
     JointNotFound,
+    ProblemError,
     ScenarioError,
     StepLimitError,
     VtmError,
     excerpt,
 )
+from .friction import Coulomb, FrictionLaw, IdealLock, Stribeck
 from .holonomic import FrameConstraint
 from .inputs import check_schema, number, read_yaml
 from .integrators import DEFAULT_MAX_STEPS, DOP853, FIXED_STEP, INTEGRATORS, Integrator
 from .integrators.base import steps_text
+from .problem import LockEvent, Problem, check_transition
+from .results import SimulationResult
 from .robot import DRIVES_SCHEMA, Drive, Robot, load_robot
-from .simulation import DEFAULT_BAUMGARTE, LockEvent, SimulationResult, simulate
+from .simulation import simulate
 from .stop import DEFAULT_GAIN, DEFAULT_REST_SPEED, Stop
 from .transitions import TRANSITIONS
 
@@ -254,6 +259,18 @@ SCHEMA: dict[str, Any] = {
                         "Holding torque, motor side [N m] >= sliding, at most 1e6.",
                         exclusive_low=True,
                     ),
+                    "friction": {
+                        "enum": ["coulomb", "stribeck"],
+                        "description": "Friction law: coulomb (constant sliding torque) or "
+                        "stribeck (falls from the static to the sliding torque over "
+                        "stribeck_velocity). Default: coulomb.",
+                    },
+                    "stribeck_velocity": number(
+                        0.0,
+                        MAX_RATE,
+                        "Stribeck law: motor speed of the drop [rad/s], > 0, at most 1e3.",
+                        exclusive_low=True,
+                    ),
                 },
             },
         },
@@ -302,51 +319,82 @@ SCHEMA: dict[str, Any] = {
 
 DEFAULT_DT = 1.0e-4  # [s]
 DEFAULT_TRANSITION = "kkt"
-#: Folder of the scenarios shipped with the project.
-SCENARIOS_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+#: Folder of the scenarios shipped with the project: ``scenarios/`` at the top of the source
+#: tree, installed as the package data ``vtm_pin.scenarios`` (so an installed wheel has it too).
+SCENARIOS_DIR = Path(str(resources.files("vtm_pin.scenarios")))
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario, ready to simulate.
+    """A validated scenario: the problem to simulate, how to run it, and what to report.
 
     Attributes:
         source: The file it was read from ("" when built from a mapping).
         name: File stem, used to name outputs.
         description: Free text.
-        robot: The loaded robot, drives applied.
-        q0: Initial joint positions [rad], shape (n,).
-        v0: Initial joint velocities [rad/s], shape (n,).
-        duration: End time [s].
+        problem: What to simulate (robot, initial state, duration, locks, brakes, stop,
+            frame constraints); its fields are also readable here (``scenario.robot``...).
         integrator: Integrator object (RK4, SemiImplicitEuler or DOP853).
         transition: Transition rule name.
-        events: Lock events in time order.
-        brakes: Brakes, acting after the stop signal.
-        stop: The emergency stop, if any.
         tool_frame: Frame followed by the stopping report.
         assumptions: Stated assumptions, quoted by reports.
-        constraints: Frame constraints active from t = 0.
-        baumgarte: Baumgarte gains (alpha, beta) [1/s].
         constraint_keys: Key in the file of each frame constraint, by name (for messages).
     """
 
     source: str
     name: str
     description: str
-    robot: Robot
-    q0: np.ndarray
-    v0: np.ndarray
-    duration: float
+    problem: Problem
     integrator: Integrator
     transition: str
-    events: tuple[LockEvent, ...]
-    brakes: tuple[Brake, ...] = ()
-    stop: Stop | None = None
     tool_frame: str = ""
     assumptions: tuple[str, ...] = ()
-    constraints: tuple[FrameConstraint, ...] = ()
-    baumgarte: tuple[float, float] = DEFAULT_BAUMGARTE
     constraint_keys: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def robot(self) -> Robot:
+        """The loaded robot, drives applied."""
+        return self.problem.robot
+
+    @property
+    def q0(self) -> np.ndarray:
+        """Initial joint positions [rad], shape (n,)."""
+        return self.problem.q0
+
+    @property
+    def v0(self) -> np.ndarray:
+        """Initial joint velocities [rad/s], shape (n,)."""
+        return self.problem.v0
+
+    @property
+    def duration(self) -> float:
+        """End time [s]."""
+        return self.problem.duration
+
+    @property
+    def events(self) -> tuple[LockEvent, ...]:
+        """Lock events, in the file's order."""
+        return self.problem.events
+
+    @property
+    def brakes(self) -> tuple[Brake, ...]:
+        """Brakes, acting after the stop signal."""
+        return self.problem.brakes
+
+    @property
+    def stop(self) -> Stop | None:
+        """The emergency stop, if any."""
+        return self.problem.stop
+
+    @property
+    def constraints(self) -> tuple[FrameConstraint, ...]:
+        """Frame constraints active from t = 0."""
+        return self.problem.constraints
+
+    @property
+    def baumgarte(self) -> tuple[float, float]:
+        """Baumgarte gains (alpha, beta) [1/s]."""
+        return self.problem.baumgarte
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -467,44 +515,35 @@ def build_scenario(
         _constraint(robot, spec, source, f"constraints[{i}]", names)
         for i, spec in enumerate(raw.get("constraints", []))
     )
-    events = []
-    locked: set[str] = set()
-    for k, ev in sorted(enumerate(raw.get("events", [])), key=lambda item: item[1]["t"]):
-        t = float(ev["t"])
-        if not 0.0 <= t <= duration:
-            raise ScenarioError(
-                source, f"events[{k}].t", f"{t} s is outside [0, duration = {duration}] s"
-            )
-        if "lock" not in ev and "activate" not in ev:
-            raise ScenarioError(source, f"events[{k}]", "needs 'lock' or 'activate' (or both)")
-        activate = tuple(
-            _constraint(robot, spec, source, f"events[{k}].activate[{i}]", names)
-            for i, spec in enumerate(ev.get("activate", []))
+    events = tuple(
+        LockEvent(
+            t=float(ev["t"]),
+            lock=tuple(ev.get("lock", [])),
+            activate=tuple(
+                _constraint(robot, spec, source, f"events[{k}].activate[{i}]", names)
+                for i, spec in enumerate(ev.get("activate", []))
+            ),
         )
-        for joint in ev.get("lock", []):
-            _check_joint(robot, joint, source, f"events[{k}].lock")
-            if joint in locked:
-                raise ScenarioError(
-                    source,
-                    f"events[{k}].lock",
-                    f"joint '{joint}' locks again at t = {t} s but is already locked",
-                )
-            locked.add(joint)
-        events.append(LockEvent(t=t, lock=tuple(ev.get("lock", [])), activate=activate))
+        for k, ev in enumerate(raw.get("events", []))
+    )
 
     stab = raw.get("stabilisation", {})
-    baumgarte = (float(stab.get("alpha", 10.0)), float(stab.get("beta", 10.0)))
-    brakes = _brakes(robot, raw.get("brakes", {}), source)
-    if brakes and (constraints or any(e.activate for e in events)):
-        raise ScenarioError(
-            source, "brakes", "brakes together with loop closures or dockings are not supported"
-        )
     transition = raw.get("transition", DEFAULT_TRANSITION)
-    if transition == "naive" and (constraints or any(e.activate for e in events)):
-        raise ScenarioError(source, "transition", "naive is defined for joint locks only")
-    stop = _stop(robot, raw.get("stop"), source, duration)
-    if brakes and stop is None:
-        raise ScenarioError(source, "brakes", "brakes act after a stop signal: add a 'stop' key")
+    try:
+        problem = Problem(
+            robot=robot,
+            q0=q0,
+            v0=v0,
+            duration=duration,
+            events=events,
+            brakes=_brakes(raw.get("brakes", {}), source),
+            stop=_stop(robot, raw.get("stop"), source),
+            constraints=constraints,
+            baumgarte=(float(stab.get("alpha", 10.0)), float(stab.get("beta", 10.0))),
+        )
+        check_transition(problem, transition)
+    except ProblemError as exc:
+        raise ScenarioError(source, exc.key, exc.problem) from exc
     tool_frame = raw.get("tool_frame", robot.tool_frame)
     if not robot.model.existFrame(tool_frame):
         frames = ", ".join(f.name for f in robot.model.frames)
@@ -516,17 +555,9 @@ def build_scenario(
         source=source,
         name=name,
         description=str(raw.get("description", "")),
-        robot=robot,
-        q0=q0,
-        v0=v0,
-        duration=duration,
+        problem=problem,
         integrator=integrator,
         transition=transition,
-        events=tuple(events),
-        constraints=constraints,
-        baumgarte=baumgarte,
-        brakes=brakes,
-        stop=stop,
         tool_frame=tool_frame,
         assumptions=tuple(raw.get("assumptions", ())),
         constraint_keys=names,
@@ -614,30 +645,16 @@ def _constraint(
     return constraint
 
 
-def _brakes(robot: Robot, raw: Mapping[str, Any], source: str) -> tuple[Brake, ...]:
+def _brakes(raw: Mapping[str, Any], source: str) -> tuple[Brake, ...]:
     brakes = []
     for joint, spec in raw.items():
         key = f"brakes.{excerpt(joint)}"
-        _check_joint(robot, joint, source, key)
-        ideal = bool(spec.get("ideal", False))
-        torques = {"sliding_torque", "static_torque"} & set(spec)
-        if ideal and torques:
-            raise ScenarioError(
-                source,
-                key,
-                "an ideal brake has infinite torque: drop " + " and ".join(sorted(torques)),
-            )
-        if not ideal and "sliding_torque" not in spec:
-            raise ScenarioError(source, key, "needs sliding_torque [N m] (or ideal: true)")
         try:
             brakes.append(
                 Brake(
                     joint=joint,
                     delay=float(spec.get("delay", 0.0)),
-                    ramp=float(spec.get("ramp", 0.0)),
-                    sliding_torque=math.inf if ideal else float(spec["sliding_torque"]),
-                    static_torque=None if ideal else spec.get("static_torque"),
-                    gear_ratio=float(robot.gear_ratio[robot.joint_index(joint)]),
+                    friction=_friction(spec, source, key),
                 )
             )
         except BrakeError as exc:
@@ -645,7 +662,33 @@ def _brakes(robot: Robot, raw: Mapping[str, Any], source: str) -> tuple[Brake, .
     return tuple(brakes)
 
 
-def _stop(robot: Robot, raw: Any, source: str, duration: float) -> Stop | None:
+def _friction(spec: Mapping[str, Any], source: str, key: str) -> FrictionLaw:
+    """The friction law of one brake's mapping (motor side figures)."""
+    law = spec.get("friction", "coulomb")
+    figures = {"sliding_torque", "static_torque", "friction", "stribeck_velocity"} & set(spec)
+    if spec.get("ideal", False):
+        if figures:
+            raise ScenarioError(
+                source,
+                key,
+                "an ideal brake locks at engagement: drop " + " and ".join(sorted(figures)),
+            )
+        return IdealLock()
+    if "sliding_torque" not in spec:
+        raise ScenarioError(source, key, "needs sliding_torque [N m] (or ideal: true)")
+    if ("stribeck_velocity" in spec) != (law == "stribeck"):
+        raise ScenarioError(
+            source, key, "stribeck_velocity [rad/s] goes with friction: stribeck, and only there"
+        )
+    sliding, static = float(spec["sliding_torque"]), spec.get("static_torque")
+    ramp = float(spec.get("ramp", 0.0))
+    if law == "stribeck":
+        velocity = float(spec["stribeck_velocity"])
+        return Stribeck(sliding, static, ramp=ramp, stribeck_velocity=velocity)
+    return Coulomb(sliding, static, ramp=ramp)
+
+
+def _stop(robot: Robot, raw: Any, source: str) -> Stop | None:
     if raw is None:
         return None
     limit = raw.get("torque_limit")
@@ -655,8 +698,6 @@ def _stop(robot: Robot, raw: Any, source: str, duration: float) -> Stop | None:
         None if limit is None else _joint_vector(robot, limit, source, "stop.torque_limit")
     )
     t = float(raw.get("t", 0.0))
-    if t > duration:
-        raise ScenarioError(source, "stop.t", f"{t} s is after the end (duration = {duration} s)")
     try:
         return Stop(
             t=t,
@@ -689,18 +730,10 @@ def run_scenario(
     """
     try:
         return simulate(
-            scenario.robot,
-            scenario.q0,
-            scenario.v0,
-            scenario.duration,
-            scenario.events,
+            scenario.problem,
             scenario.integrator,
-            transition or scenario.transition,
-            scenario.brakes,
-            scenario.stop,
-            scenario.constraints,
-            scenario.baumgarte,
-            progress,
+            transition=transition or scenario.transition,
+            progress=progress,
         )
     except StepLimitError as exc:
         raise ScenarioError(scenario.source, "integrator.max_steps", str(exc)) from exc

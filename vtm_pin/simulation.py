@@ -10,165 +10,33 @@ transition rule with J1 the joints already locked and J2 the ones locking now.
 from __future__ import annotations
 
 import heapq
-import math
 import time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from enum import IntEnum
 
 import numpy as np
 
-from .brakes import Brake, BrakeMode, mode_of_load, mode_of_motion
+from .brakes import Brake, BrakeMachine
 from .constraints import check_independent, lock_jacobian
+from .drives import DriveHold, DriveLaw, DriveOff, DriveRamp
 from .dynamics import compute_energy, compute_M
 from .exceptions import SimulationError
 from .holonomic import FrameConstraint, compute_kinematics, project_initial_state, stack
 from .integrators import Integrator, Rhs, Segment
-from .phase import DriveLaw, Phase
+from .phase import Phase
+from .problem import LockEvent, Problem, check_transition
+from .results import (
+    EventRecord,
+    LockKind,
+    RowKind,
+    RowLabel,
+    SimulationResult,
+)
 from .robot import Robot
 from .stop import Stop
 from .topology import Topology
-from .transitions import TRANSITIONS, TransitionResult
-
-#: Default Baumgarte gains (alpha, beta) [1/s] for frame constraints between events.
-DEFAULT_BAUMGARTE = (10.0, 10.0)
-
-
-@dataclass(frozen=True)
-class LockEvent:
-    """Constraints that activate ideally (instantly) at a given time.
-
-    Attributes:
-        t: Event time [s].
-        lock: Names of the joints that lock at ``t``.
-        activate: Frame constraints (loop closures, dockings) that activate at ``t``; a
-            docking without target holds the frame where it is at ``t``.
-    """
-
-    t: float
-    lock: tuple[str, ...]
-    activate: tuple[FrameConstraint, ...] = ()
-
-
-@dataclass(frozen=True)
-class EventRecord:
-    """A lock: joints added to the locked set, with the transition applied.
-
-    Attributes:
-        t: Event time [s].
-        lock: Joints newly locked.
-        locked_before: Joints already locked before the event (the persistent constraints J1).
-        q: Configuration at the event [rad].
-        v_minus: Velocity just before [rad/s].
-        transition: The transition result (v_plus, Lambda, energy loss, momenta).
-        kind: ``"lock"`` (prescribed lock or ideal brake), ``"stick"`` (a sliding brake
-            came to rest and holds) or ``"activate"`` (frame constraints, maybe with locks).
-        activate: Names of the frame constraints activated.
-        rows: Label of each row of J+ = [J1; J2] (``"lock joint2"``, ``"dock.x"``), the
-            order of ``transition.Lambda``.
-    """
-
-    t: float
-    lock: tuple[str, ...]
-    locked_before: tuple[str, ...]
-    q: np.ndarray
-    v_minus: np.ndarray
-    transition: TransitionResult
-    kind: str = "lock"
-    activate: tuple[str, ...] = ()
-    rows: tuple[str, ...] = ()
-
-    @property
-    def v_plus(self) -> np.ndarray:
-        """Velocity just after [rad/s]."""
-        return self.transition.v_plus
-
-
-@dataclass(frozen=True)
-class BrakeEvent:
-    """A change of one brake's state.
-
-    Attributes:
-        t: Time [s].
-        joint: Joint name.
-        kind: ``"engage"``, ``"stick"``, ``"reverse"`` (reached v = 0 but could not hold),
-            ``"slip"`` (stuck joint broke loose) or ``"lock"`` (ideal brake).
-        v: The joint's rate at the event as integrated, before it is set to 0 [rad/s].
-        holding_torque: Torque needed to hold the joint at the event [N m] (NaN if unused).
-        static_torque: Static limit at the event, joint side [N m] (NaN if unused).
-    """
-
-    t: float
-    joint: str
-    kind: str
-    v: float
-    holding_torque: float = float("nan")
-    static_torque: float = float("nan")
-
-
-@dataclass(frozen=True)
-class SimulationResult:
-    """A simulated motion with its events.
-
-    Attributes:
-        joints: Joint names, the columns of ``q`` and ``v``.
-        t: Sample times [s], shape (k,). An event time appears twice: before and after it.
-        q: Joint positions [rad], shape (k, n).
-        v: Joint velocities [rad/s], shape (k, n).
-        free: Which joints are free at each sample, shape (k, n), bool.
-        modes: :class:`BrakeMode` code per joint and sample, shape (k, n).
-        brake_work: Work dissipated by sliding brakes since t = 0 [J], shape (k,).
-        drive_work: Work done by the drives since t = 0 [J], shape (k,).
-        brake_impulse: Friction impulse each brake delivered to its joint [N m s], shape (n,).
-        holding: Torque each lock exerts to hold its joint [N m], shape (k, n); NaN where the
-            joint is free, and everywhere in runs without brakes (not computed).
-        drift: Constraint drift of the active frame constraints per sample, shape (k, 2):
-            max |h| [m or rad] and max |J v| [m/s or rad/s]; NaN where none is active.
-        events: One record per lock, in time order.
-        brake_events: Brake state changes, in time order.
-        transition: Name of the transition rule used.
-        integrator: Name of the integrator used.
-        rhs_evals: Right-hand-side evaluations.
-        steps: Integrator steps.
-        wall_time: Seconds spent in the simulation loop [s].
-        stop: The emergency stop simulated, if any.
-    """
-
-    joints: tuple[str, ...]
-    t: np.ndarray
-    q: np.ndarray
-    v: np.ndarray
-    free: np.ndarray
-    modes: np.ndarray
-    brake_work: np.ndarray
-    drive_work: np.ndarray
-    brake_impulse: np.ndarray
-    holding: np.ndarray
-    drift: np.ndarray
-    events: tuple[EventRecord, ...]
-    brake_events: tuple[BrakeEvent, ...]
-    transition: str
-    integrator: str
-    rhs_evals: int
-    steps: int
-    wall_time: float
-    stop: Stop | None = None
-
-    def q_at(self, times: Sequence[float] | np.ndarray) -> np.ndarray:
-        """Joint positions at the given times [s], linearly interpolated between samples.
-
-        Exact at sample times; q is continuous across events, so an event time is well
-        defined. Returns shape (len(times), n) [rad].
-
-        Raises:
-            SimulationError: A time lies outside the simulated interval.
-        """
-        times = np.atleast_1d(np.asarray(times, dtype=float))
-        outside = times[(times < self.t[0]) | (times > self.t[-1])]
-        if outside.size:
-            raise SimulationError(
-                f"t = {outside[0]} s is outside the simulated [{self.t[0]}, {self.t[-1]}] s"
-            )
-        return np.column_stack([np.interp(times, self.t, col) for col in self.q.T])
+from .transitions import TRANSITIONS
 
 
 class _Hybrid:
@@ -188,21 +56,17 @@ class _Hybrid:
         self.q, self.v = q, v
         self.extras = np.zeros(2 + n)
         self.locked: list[int] = []
-        self.modes = [BrakeMode.FREE] * n
         self.brakes = {robot.joint_index(b.joint): b for b in brakes}
-        self.engaged: dict[int, float] = {}
+        self.machine = BrakeMachine(self.brakes, robot.joints, robot.gear_ratio)
         self.stop = stop
-        self.drive = DriveLaw.OFF if stop is None else DriveLaw.HOLD
+        self.drive: DriveLaw = DriveOff() if stop is None else DriveHold()
         self.drive_on = np.full(n, stop is not None)
-        self.v_signal: np.ndarray | None = None
         self.rule = TRANSITIONS[rule]
         self.rule_name = rule
         self.frames: list[FrameConstraint] = []
         self.baumgarte = (0.0, 0.0)
         self.data = robot.model.createData()
         self.events: list[EventRecord] = []
-        self.brake_events: list[BrakeEvent] = []
-        self._v_event: dict[int, float] = {}  # rates of the resting joints before zeroing
         self.phase = self.new_phase()
 
     def new_phase(self, locked: Sequence[int] | None = None) -> Phase:
@@ -210,13 +74,9 @@ class _Hybrid:
         return Phase(
             self.robot,
             topology,
-            self.modes,
-            self.brakes,
-            self.engaged,
+            self.machine if self.brakes else None,
             self.drive,
             self.drive_on,
-            self.stop,
-            self.v_signal,
             tuple(self.frames),
             self.baumgarte,
         )
@@ -225,7 +85,7 @@ class _Hybrid:
         self,
         t: float,
         joints: Sequence[int],
-        kind: str,
+        kind: LockKind,
         frames: Sequence[FrameConstraint] = (),
     ) -> None:
         """Apply the transition rule for ``joints`` locking and ``frames`` activating at ``t``.
@@ -246,14 +106,13 @@ class _Hybrid:
         _, F2, _ = stack(tuple(frames), model, self.data)
         J1 = np.vstack([lock_jacobian(n, self.locked), F1])
         J2 = np.vstack([lock_jacobian(n, joints), F2])
-        labels = [f"lock {names[i]}" for i in [*self.locked, *joints]]
-        labels = (
-            labels[: len(self.locked)]
-            + [f"{f.name}.{a}" for f in self.frames for a in f.axes]
-            + labels[len(self.locked) :]
-            + [f"{f.name}.{a}" for f in frames for a in f.axes]
-        )
-        check_independent(np.vstack([J1, J2]), labels)
+        labels = [
+            *(RowLabel(RowKind.JOINT, names[i]) for i in self.locked),
+            *(RowLabel(RowKind.FRAME, f.name, a) for f in self.frames for a in f.axes),
+            *(RowLabel(RowKind.JOINT, names[i]) for i in joints),
+            *(RowLabel(RowKind.FRAME, f.name, a) for f in frames for a in f.axes),
+        ]
+        check_independent(np.vstack([J1, J2]), [str(label) for label in labels])
         M = compute_M(model, self.data, self.q)
         result = self.rule(M, J1, J2, self.v)
         self.events.append(
@@ -264,7 +123,7 @@ class _Hybrid:
                 q=self.q.copy(),
                 v_minus=self.v.copy(),
                 transition=result,
-                kind="activate" if frames else kind,
+                kind=LockKind.ACTIVATE if frames else kind,
                 activate=tuple(f.name for f in frames),
                 rows=tuple(labels),
             )
@@ -275,205 +134,56 @@ class _Hybrid:
         self.v[self.locked] = 0.0
 
     def engage(self, t: float, i: int, ideal_locks: list[int]) -> None:
-        """Brake ``i`` engages: its drive goes off, and it locks (ideal) or starts braking.
-
-        A joint moving faster than :data:`vtm_pin.brakes.REST_RATE` starts sliding against
-        its motion; a joint at rest is left to :meth:`settle`, which decides stick or slip
-        once every event of this instant has been applied.
-        """
-        brake = self.brakes[i]
-        name = self.robot.joints[i]
+        """Brake ``i`` engages: its drive goes off; an ideal brake's joint locks now."""
         self.drive_on[i] = False
-        self.engaged[i] = t
-        if i in self.locked:
-            return
-        if brake.ideal:
-            self.modes[i] = BrakeMode.LOCKED
+        if self.machine.engage(t, i, float(self.v[i]), i in self.locked):
             ideal_locks.append(i)
-            self.brake_events.append(BrakeEvent(t, name, "lock", float(self.v[i])))
-            return
-        self.brake_events.append(BrakeEvent(t, name, "engage", float(self.v[i])))
-        self.modes[i] = mode_of_motion(float(self.v[i])) or BrakeMode.FREE
 
     def settle(self, t: float, due: Sequence[int] = ()) -> None:
-        """Bring every engaged brake's mode in line with the state at ``t``; build the phase.
-
-        One rule for every braked joint (Modelica's ``Brake``), applied to all of them at
-        once, as an active set for Coulomb friction:
-
-        1. A sliding joint whose rate a jump reversed slides the other way.
-        2. Every joint at rest (engaged at rest, slid to rest, or stuck) is held; while some
-           holding torque exceeds its static limit, the worst-loaded joint (largest
-           |hold| / limit) is released to slide in the direction of its load, and the
-           others are held again. Those still held stick, in one consistent lock.
-        3. A released joint must then accelerate the way it slides, now that the others
-           slide too; if it would not, it slides the other way, or, if neither direction
-           is consistent, its static friction holds it and it sticks.
-
-        A released joint stays released at this instant, so the decisions end.
-
-        Args:
-            t: Time [s].
-            due: Joints whose state event fired now (reached v = 0, or hit the static
-                limit): a stuck one among them is released even within round-off of it.
-        """
-        self._follow_reversals(t)
-        resting = self._resting()
-        if resting:
-            forced = {i for i in due if i in self.locked}  # at the static limit now
-            released = self._hold_or_release(t, resting, forced)
-            self._check_released(t, released)
+        """Let the brakes decide stick or slip at ``t``, then build the next phase."""
+        if self.brakes:
+            self.machine.settle(t, self, due)
         self.phase = self.new_phase()
 
-    def _hold_or_release(self, t: float, resting: list[int], forced: set[int]) -> list[int]:
-        """Step 2 of :meth:`settle`: release the worst-loaded joints, lock the rest."""
-        limits = {i: self.brakes[i].static(t - self.engaged[i]) for i in resting}
-        released = []
-        while True:
-            trial = self.new_phase(sorted({*self.locked, *resting}))
-            hold = trial.holding_torque(t, trial.pack(self.q, self.v, self.extras))
-            i = _worst_loaded(resting, hold, limits, forced)
-            if i is None:
-                break
-            self._release(t, i, float(hold[i]), limits[i])
-            resting.remove(i)
-            forced.discard(i)
-            released.append(i)
-        self._stick(t, [i for i in resting if i not in self.locked], hold, limits)
-        return released
+    # The brake state machine's view of the loop (vtm_pin.brakes.BrakeWorld).
 
-    def _check_released(self, t: float, released: list[int]) -> None:
-        """Step 3 of :meth:`settle`: flip or stick released joints that would not slide."""
-        for _ in range(2 * len(released)):
-            wrong = self._against_motion(t, released)
-            if wrong is None:
-                return
-            self.modes[wrong] = mode_of_motion(-self.modes[wrong].sign) or BrakeMode.FREE
-            if self._against_motion(t, [wrong]) is None:
-                name = self.robot.joints[wrong]
-                self.brake_events.append(BrakeEvent(t, name, "reverse", 0.0))
-                continue
-            trial = self.new_phase([*self.locked, wrong])
-            hold = trial.holding_torque(t, trial.pack(self.q, self.v, self.extras))
-            limit = self.brakes[wrong].static(t - self.engaged[wrong])
-            self._stick(t, [wrong], hold, {wrong: limit})
+    def holding_torque(self, t: float, locked: Sequence[int]) -> np.ndarray:
+        """Holding torques [N m] with ``locked`` held and the brakes' current modes."""
+        trial = self.new_phase(locked)
+        return trial.holding_torque(t, trial.pack(self.q, self.v, self.extras))
 
-    def _against_motion(self, t: float, joints: Sequence[int]) -> int | None:
-        """The first of ``joints`` (free, sliding from rest) accelerating against its mode."""
+    def accelerations(self, t: float) -> np.ndarray:
+        """Joint accelerations [rad/s^2] with the current locks and modes."""
         phase = self.new_phase()
         k = phase.k
         a = np.zeros(self.robot.nv)
         a[phase.topology.free] = phase.rhs(t, phase.pack(self.q, self.v, self.extras))[k : 2 * k]
-        for i in joints:
-            if i not in self.locked and a[i] * self.modes[i].sign < 0.0:
-                return i
-        return None
+        return a
 
-    def _stick(
-        self, t: float, joints: Sequence[int], hold: np.ndarray, limits: Mapping[int, float]
-    ) -> None:
-        """Joints at rest whose brakes hold them stick: one consistent lock."""
-        for i in joints:
-            name = self.robot.joints[i]
-            self.brake_events.append(
-                BrakeEvent(t, name, "stick", self._v_event[i], float(hold[i]), limits[i])
-            )
-            self.modes[i] = BrakeMode.STUCK
-        if joints:
-            self.lock(t, joints, "stick")
-
-    def _follow_reversals(self, t: float) -> None:
-        """Sliding joints whose rate has the other sign (after a jump) slide the other way."""
-        for i in self.engaged:
-            mode, moving = self.modes[i], mode_of_motion(float(self.v[i]))
-            if i not in self.locked and moving is not None and mode is not moving:
-                if mode.sliding or mode is BrakeMode.FREE:
-                    self.modes[i] = moving
-                    self.brake_events.append(
-                        BrakeEvent(t, self.robot.joints[i], "reverse", float(self.v[i]))
-                    )
-
-    def _resting(self) -> list[int]:
-        """Braked joints at rest that need the stick/slip decision (their rates set to 0).
-
-        Stuck joints, and engaged joints at rest (|v| <= REST_RATE) that are free or
-        sliding; not ideal brakes, nor joints locked by a prescribed lock.
-        """
-        resting = []
-        self._v_event.clear()
-        for i in sorted(self.engaged):
-            mode = self.modes[i]
-            if mode is BrakeMode.LOCKED or (i in self.locked and mode is not BrakeMode.STUCK):
-                continue
-            at_rest = mode_of_motion(float(self.v[i])) is None
-            if mode is BrakeMode.STUCK or at_rest:
-                resting.append(i)
-                self._v_event[i] = float(self.v[i])
-                self.v[i] = 0.0
-        return resting
-
-    def _release(self, t: float, i: int, hold: float, limit: float) -> None:
-        """Joint ``i`` cannot be held: it slides in the direction of its load."""
-        if i in self.locked:
-            kind = "slip"
-            self.locked = [j for j in self.locked if j != i]
-        else:
-            kind = "reverse" if self.modes[i].sliding else "start"
-        self.modes[i] = mode_of_load(hold)
-        name = self.robot.joints[i]
-        self.brake_events.append(BrakeEvent(t, name, kind, self._v_event[i], hold, limit))
-
-
-def _worst_loaded(
-    resting: Sequence[int], hold: np.ndarray, limits: Mapping[int, float], forced: set[int]
-) -> int | None:
-    """The held joint to release first: a forced one, else the largest |hold| / limit > 1."""
-    if forced:
-        return min(forced)
-    worst, ratio = None, 1.0
-    for i in resting:
-        if abs(hold[i]) > limits[i]:
-            r = math.inf if limits[i] == 0.0 else abs(hold[i]) / limits[i]
-            if worst is None or r > ratio:
-                worst, ratio = i, r
-    return worst
+    def stick(self, t: float, joints: Sequence[int]) -> None:
+        """Brakes that hold their joints at rest: one momentum-consistent lock."""
+        self.lock(t, joints, LockKind.STICK)
 
 
 def simulate(
-    robot: Robot,
-    q0: np.ndarray,
-    v0: np.ndarray,
-    duration: float,
-    events: Sequence[LockEvent],
+    problem: Problem,
     integrator: Integrator,
+    *,
     transition: str = "kkt",
-    brakes: Sequence[Brake] = (),
-    stop: Stop | None = None,
-    constraints: Sequence[FrameConstraint] = (),
-    baumgarte: tuple[float, float] = DEFAULT_BAUMGARTE,
     progress: Callable[[float], None] | None = None,
 ) -> SimulationResult:
-    """Simulate the robot from (q0, v0) with prescribed locks, and brakes after a stop signal.
+    """Simulate a problem: prescribed locks, and brakes after a stop signal.
 
     Without a stop no joint torque acts (drives off). With a stop, the drives hold the joint
     rates constant until the signal, then act as its category says, and each brake engages
-    after its delay (see :mod:`vtm_pin.stop` and :mod:`vtm_pin.brakes`).
+    after its delay (see :mod:`vtm_pin.stop` and :mod:`vtm_pin.brakes`). Frame constraints
+    active from t = 0 get q0 and v0 projected onto them first, with a :class:`VtmWarning` if
+    that moves them by more than 1e-6.
 
     Args:
-        robot: The robot.
-        q0: Initial joint positions [rad], shape (n,).
-        v0: Initial joint velocities [rad/s], shape (n,).
-        duration: End time [s], > 0.
-        events: Ideal lock events with 0 <= t <= duration; a joint may lock only once.
+        problem: What to simulate (validated when it was built).
         integrator: How to integrate between events.
         transition: Name in :data:`vtm_pin.transitions.TRANSITIONS`.
-        brakes: One brake per braked joint; they act only after a stop signal.
-        stop: The emergency stop, if any.
-        constraints: Frame constraints active from t = 0 (loop closures, dockings); q0 and
-            v0 are projected onto them first, with a :class:`VtmWarning` if that moves them
-            by more than 1e-6.
-        baumgarte: Gains (alpha, beta) [1/s] of the Baumgarte stabilisation of the frame
-            constraints between events; (0, 0) integrates the bare index-1 equations.
         progress: Called with the simulated time t [s] at every right-hand-side evaluation
             and at the end of every segment, for progress display; it must not change
             anything (the results do not depend on it).
@@ -482,28 +192,25 @@ def simulate(
         The sampled motion and event records.
 
     Raises:
-        SimulationError: Bad arguments, or the state became non-finite.
-        JointNotFound: An event or brake names an unknown joint.
+        SimulationError: An unknown transition rule, or the state became non-finite.
     """
-    _check_arguments(robot, duration, events, transition, brakes, stop, constraints)
+    if transition not in TRANSITIONS:
+        raise SimulationError(
+            f"Unknown transition '{transition}'; allowed: {', '.join(sorted(TRANSITIONS))}"
+        )
+    check_transition(problem, transition)
+    robot, duration, stop = problem.robot, problem.duration, problem.stop
     n = robot.nv
     start = time.perf_counter()
-    h = _Hybrid(
-        robot,
-        np.array(q0, dtype=float).reshape(n),
-        np.array(v0, dtype=float).reshape(n),
-        brakes,
-        stop,
-        transition,
-    )
-    h.baumgarte = baumgarte
-    if constraints:
-        h.frames = [c.latch(robot.model, h.data, h.q) for c in constraints]
+    h = _Hybrid(robot, problem.q0.copy(), problem.v0.copy(), problem.brakes, stop, transition)
+    h.baumgarte = problem.baumgarte
+    if problem.constraints:
+        h.frames = [c.latch(robot.model, h.data, h.q) for c in problem.constraints]
         h.q, h.v = project_initial_state(robot, h.q, h.v, h.frames)
         h.phase = h.new_phase()
-    queue = _time_events(robot, events, h.brakes, stop, duration)
+    queue = _time_events(problem.events, h.brakes, stop, duration)
     trace = _Trace(n, h.extras.size)
-    if queue and queue[0][0] <= 0.0:
+    if queue and queue[0].t <= 0.0:
         trace.add_state(0.0, h)  # the state before the events at t = 0
     rhs_evals = steps = 0
     t = 0.0
@@ -515,7 +222,7 @@ def simulate(
                 trace.add_state(t, h)  # the state after the events at t = duration
         if t >= duration:
             break
-        t_end = min(queue[0][0], duration) if queue else duration
+        t_end = min(queue[0].t, duration) if queue else duration
         phase = h.phase
         segment = integrator.integrate(
             phase.rhs if progress is None else _reporting(phase.rhs, progress),
@@ -528,7 +235,7 @@ def simulate(
         rhs_evals += segment.rhs_evals
         steps += segment.t.size - 1
         _check_energy(h, phase, segment.y, segment.t, integrator)
-        h.q, h.v, h.extras = trace.add_segment(phase, segment, h, bool(brakes))
+        h.q, h.v, h.extras = trace.add_segment(phase, segment, h, bool(problem.brakes))
         t = float(segment.t[-1])
         if progress is not None:
             progress(t)
@@ -546,61 +253,57 @@ def simulate(
     )
 
 
-def _check_arguments(
-    robot: Robot,
-    duration: float,
-    events: Sequence[LockEvent],
-    transition: str,
-    brakes: Sequence[Brake],
-    stop: Stop | None,
-    constraints: Sequence[FrameConstraint],
-) -> None:
-    """Refuse arguments :func:`simulate` cannot run, with a one-line reason."""
-    if transition not in TRANSITIONS:
-        raise SimulationError(
-            f"Unknown transition '{transition}'; allowed: {', '.join(sorted(TRANSITIONS))}"
-        )
-    if not duration > 0.0:
-        raise SimulationError(f"Duration {duration} is not a positive number of seconds")
-    for lock_event in events:
-        if not 0.0 <= lock_event.t <= duration:
-            raise SimulationError(f"Event at t = {lock_event.t} s is outside [0, {duration}] s")
-    if brakes and stop is None:
-        raise SimulationError("Brakes act only after a stop signal: give a stop")
-    activated = list(constraints) + [c for e in events for c in e.activate]
-    if brakes and activated:
-        raise SimulationError("Brakes together with loop closures or dockings are not supported")
-    for constraint in activated:
-        constraint.check(robot.model)
+class TimeKind(IntEnum):
+    """Kinds of time events, in the order they apply at one instant."""
+
+    SIGNAL = 0  # the stop button: drives off (category 0) or ramping (category 1)
+    BRAKE_SIGNAL = 1  # category 1: drives of joints without a brake go off
+    ENGAGE = 2  # one brake engages (payload: joint index)
+    LOCK = 3  # prescribed locks and activations (payload: LockEvent)
+    KINK = 4  # a ramp ends: the torques have a kink, the integrator restarts there
 
 
-def _apply_time_events(
-    h: _Hybrid, queue: list[tuple[float, int, int, str, object]], t: float
-) -> bool:
+@dataclass(frozen=True, order=True)
+class TimeEvent:
+    """A time event of the hybrid loop, ordered by time, then kind, then creation.
+
+    Attributes:
+        t: Time [s].
+        kind: What happens.
+        count: Creation order (ties at equal time and kind).
+        payload: The lock event or the joint index the kind needs.
+    """
+
+    t: float
+    kind: TimeKind
+    count: int
+    payload: LockEvent | int | None = field(default=None, compare=False)
+
+
+def _apply_time_events(h: _Hybrid, queue: list[TimeEvent], t: float) -> bool:
     """Apply the time events due at ``t`` (in heap order); whether there were any."""
     ideal: list[int] = []
     frames: list[FrameConstraint] = []
     changed = False
-    while queue and queue[0][0] <= t:
-        _, _, _, kind, payload = heapq.heappop(queue)
+    while queue and queue[0].t <= t:
+        event = heapq.heappop(queue)
         changed = True
-        if kind == "lock":
-            assert isinstance(payload, LockEvent)
-            ideal.extend(h.robot.joint_indices(payload.lock))
-            frames.extend(payload.activate)
-        elif kind == "signal":
-            assert h.stop is not None
-            if h.stop.category == 0:
-                h.drive, h.drive_on[:] = DriveLaw.OFF, False
-            else:
-                h.drive, h.v_signal = DriveLaw.RAMP, h.v.copy()
-        elif kind == "brake_signal":
-            h.drive_on[[i for i in range(h.robot.nv) if i not in h.brakes]] = False
-        elif kind == "engage":
-            assert isinstance(payload, int)
-            h.engage(t, payload, ideal)
+        match event.kind, event.payload:
+            case TimeKind.LOCK, LockEvent() as lock:
+                ideal.extend(h.robot.joint_indices(lock.lock))
+                frames.extend(lock.activate)
+            case TimeKind.SIGNAL, _:
+                assert h.stop is not None
+                if h.stop.category == 0:
+                    h.drive, h.drive_on[:] = DriveOff(), False
+                else:
+                    h.drive = DriveRamp(h.stop, h.v.copy())
+            case TimeKind.BRAKE_SIGNAL, _:
+                h.drive_on[[i for i in range(h.robot.nv) if i not in h.brakes]] = False
+            case TimeKind.ENGAGE, int() as joint:
+                h.engage(t, joint, ideal)
     if ideal or frames:
-        h.lock(t, ideal, "lock", frames)
+        h.lock(t, ideal, LockKind.LOCK, frames)
     return changed
 
 
@@ -627,7 +330,7 @@ class _Trace:
             q=h.q[None].copy(),
             v=h.v[None].copy(),
             free=free[None],
-            modes=np.array(h.modes, dtype=np.int8)[None],
+            modes=np.array(h.machine.modes, dtype=np.int8)[None],
             extras=h.extras[None].copy(),
             hold=np.full((1, self.n), np.nan),
             drift=np.full((1, 2), np.nan),
@@ -657,7 +360,7 @@ class _Trace:
             q=q,
             v=v,
             free=np.broadcast_to(mask, (size, n)),
-            modes=np.broadcast_to(np.array(h.modes, dtype=np.int8), (size, n)),
+            modes=np.broadcast_to(np.array(h.machine.modes, dtype=np.int8), (size, n)),
             extras=extras,
             hold=hold,
             drift=phase.constraint_drift(segment.y),
@@ -690,7 +393,7 @@ class _Trace:
             holding=rows["hold"],
             drift=rows["drift"],
             events=tuple(h.events),
-            brake_events=tuple(h.brake_events),
+            brake_events=tuple(h.machine.events),
             transition=h.rule_name,
             integrator=integrator,
             rhs_evals=rhs_evals,
@@ -777,31 +480,29 @@ def _settings(integrator: Integrator) -> str:
 
 
 def _time_events(
-    robot: Robot,
     events: Sequence[LockEvent],
     brakes: dict[int, Brake],
     stop: Stop | None,
     duration: float,
-) -> list[tuple[float, int, int, str, object]]:
-    """Heap of (t, order, count, kind, payload); at equal t: signal, engage, lock, kink."""
-    items: list[tuple[float, int, str, object]] = []
+) -> list[TimeEvent]:
+    """Heap of the run's time events up to ``duration``."""
+    items: list[tuple[float, TimeKind, LockEvent | int | None]] = []
     for event in events:
-        robot.joint_indices(event.lock)  # unknown names fail before the run
-        items.append((event.t, 2, "lock", event))
+        items.append((event.t, TimeKind.LOCK, event))
     if stop is not None:
-        items.append((stop.t, 0, "signal", None))
+        items.append((stop.t, TimeKind.SIGNAL, None))
         if stop.category == 1:
             assert stop.ramp_time is not None
-            items.append((stop.t + stop.ramp_time, 3, "kink", None))
-            items.append((stop.brake_signal, 1, "brake_signal", None))
+            items.append((stop.t + stop.ramp_time, TimeKind.KINK, None))
+            items.append((stop.brake_signal, TimeKind.BRAKE_SIGNAL, None))
         for i, brake in sorted(brakes.items()):
             t_engage = stop.brake_signal + brake.delay
-            items.append((t_engage, 1, "engage", i))
-            if brake.ramp > 0.0:
-                items.append((t_engage + brake.ramp, 3, "kink", None))
+            items.append((t_engage, TimeKind.ENGAGE, i))
+            if brake.friction.ramp > 0.0:
+                items.append((t_engage + brake.friction.ramp, TimeKind.KINK, None))
     queue = [
-        (t, order, count, kind, payload)
-        for count, (t, order, kind, payload) in enumerate(items)
+        TimeEvent(t, kind, count, payload)
+        for count, (t, kind, payload) in enumerate(items)
         if t <= duration
     ]
     heapq.heapify(queue)

@@ -12,11 +12,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from .brakes import Brake, BrakeMode
+from .kinematics import compute_tool_jacobian, compute_tool_motion
+from .results import RowKind, SimulationResult
 from .robot import Robot
-from .simulation import SimulationResult
 from .stop import DEFAULT_REST_SPEED
 
 
@@ -128,8 +128,8 @@ def compute_stopping_report(
             if locked_for_good[j]:
                 latch_time[j] = event.t - t_signal
         for label, impulse in zip(event.rows, -event.transition.Lambda, strict=True):
-            if label.startswith("lock "):
-                lock_impulse[robot.joint_index(label[5:])] += impulse
+            if label.kind is RowKind.JOINT:
+                lock_impulse[robot.joint_index(label.name)] += impulse
         order = [robot.joint_index(name) for name in event.locked_before + event.lock]
         free_after = [j for j in range(n) if j not in order]
         if free_after:
@@ -151,13 +151,14 @@ def compute_stopping_report(
             margin[j] = np.inf
         elif brake is not None and stuck.any():
             t0 = engaged[robot.joints[j]]
-            limits = np.array([brake.static(t - t0) for t in result.t[stuck]])
+            ratio = float(robot.gear_ratio[j])
+            limits = np.array([brake.static(t - t0, ratio) for t in result.t[stuck]])
             margin[j] = float(np.min(limits - np.abs(hold[stuck, j])))
 
-    path, speed = _tool_path(robot, result, tool_frame or robot.tool_frame)
+    path, speed = compute_tool_motion(robot, result.q, result.v, tool_frame)
     tcp_surge = 0.0
     for event in result.events:
-        jac = _tool_jacobian(robot, event.q, tool_frame or robot.tool_frame)
+        jac = compute_tool_jacobian(robot, event.q, tool_frame)
         jump = np.linalg.norm(jac @ event.v_plus) - np.linalg.norm(jac @ event.v_minus)
         tcp_surge = max(tcp_surge, float(jump))
     rest_speed = result.stop.rest_speed if result.stop is not None else DEFAULT_REST_SPEED
@@ -214,27 +215,3 @@ def _rest_time(t: np.ndarray, v: np.ndarray, rest_speed: float) -> float:
         return float(t[a])
     fraction = (speed[a] - rest_speed) / (speed[a] - speed[a + 1])
     return float(t[a] + fraction * span)
-
-
-def _tool_path(robot: Robot, result: SimulationResult, frame: str) -> tuple[np.ndarray, np.ndarray]:
-    """Tool-frame position [m] and speed [m/s] at every sample."""
-    model = robot.model
-    data = model.createData()
-    fid = model.getFrameId(frame)
-    k = result.t.size
-    path = np.empty((k, 3))
-    speed = np.empty(k)
-    for i in range(k):
-        pin.forwardKinematics(model, data, result.q[i], result.v[i])
-        path[i] = pin.updateFramePlacement(model, data, fid).translation
-        velocity = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
-        speed[i] = np.linalg.norm(velocity.linear)
-    return path, speed
-
-
-def _tool_jacobian(robot: Robot, q: np.ndarray, frame: str) -> np.ndarray:
-    """Linear tool-frame Jacobian [m/rad], shape (3, n)."""
-    model = robot.model
-    data = model.createData()
-    jac = pin.computeFrameJacobian(model, data, q, model.getFrameId(frame), pin.LOCAL_WORLD_ALIGNED)
-    return np.asarray(jac[:3])
