@@ -10,7 +10,7 @@ example, 16 ms median.
 
 The default run tries 12 examples per property from a fixed seed (``derandomize``, no example
 database), so CI is reproducible and the file takes about 5 s; the falsifying examples found
-so far are replayed first (``@example``). The ``slow``-marked ``*_many`` variants run the
+so far are replayed first (``@example``). The ``slow``-marked ``test_property_many`` runs the
 same properties on 300 examples each, about a minute (``pytest -m slow
 tests/test_properties.py``).
 
@@ -91,6 +91,9 @@ WORK_ROUNDOFF = 1e-9
 #:   scale. 1e-5 leaves a 10x margin and is still 1000x below the double-counted lock at
 #:   t = 0 of issue 10, section 2 (1 % of the energy).
 BALANCE_RTOL = 1e-5
+#: The refinement that must bring a larger residual within BALANCE_RTOL: a modelling error
+#: (an energy the model creates or loses) does not shrink with the tolerance.
+REFINED = DOP853(rtol=1e-10, atol=1e-12)
 #: - ENERGY_FLOOR: absolute floor of the energy scale [J], so that runs that move almost
 #:   nothing are not judged on relative round-off.
 ENERGY_FLOOR = 1e-6
@@ -583,9 +586,13 @@ def check_brake_work(case: EStop) -> None:
 
 
 def check_energy_balance(case: EStop) -> None:
+    """The residual is integration error: within BALANCE_RTOL, or it vanishes as the
+    tolerance tightens (a Stribeck drop over 1e-3 rad/s can take DOP853 at rtol 1e-8 to
+    1.3e-4 of the scale in 18 steps; at rtol 1e-10 it is back to 4e-11 of it)."""
     r = arm(case.robot)
-    result = case.run()
-    scale, balance = energy_scale(r, result)
+    scale, balance = energy_scale(r, case.run())
+    if abs(balance["residual"]) > BALANCE_RTOL * scale:
+        scale, balance = energy_scale(r, case.run(REFINED))
     assert abs(balance["residual"]) <= BALANCE_RTOL * scale, (balance, scale)
 
 
@@ -670,121 +677,72 @@ def _settings(examples: int) -> settings:
     )
 
 
-DEFAULT = _settings(12)
-MANY = _settings(300)
+#: Examples per property in the default run and in the slow run.
+DEFAULT_EXAMPLES, MANY_EXAMPLES = 12, 300
+
+#: Each property: the check, the e-stops it is tried on, and the falsifying examples found so
+#: far (replayed first in every run).
+PROPERTIES = {
+    "brake_work_never_decreases": (
+        check_brake_work,
+        estops(),
+        [
+            EXAMPLE_DECIDED_BEFORE_IDEAL_LOCKS,
+            EXAMPLE_RAMPED_BRAKE_STARTS_AT_REST,
+            EXAMPLE_ROUNDOFF_RATE,
+        ],
+    ),
+    "energy_balance_within_integrator_accuracy": (
+        check_energy_balance,
+        estops(),
+        [EXAMPLE_LOCK_AT_T0],
+    ),
+    "report_has_no_nan": (
+        check_report,
+        estops(),
+        [EXAMPLE_WEAK_BRAKES, EXAMPLE_DECISIONS_DO_NOT_SETTLE, EXAMPLE_DECIDED_BEFORE_IDEAL_LOCKS],
+    ),
+    "brakes_that_can_hold_stop_every_joint": (
+        check_all_stop,
+        holding_estops(),
+        [EXAMPLE_STRONG_RAMPED_BRAKES],
+    ),
+    "resting_arm_on_strong_brakes_never_moves": (
+        check_never_moves,
+        resting_estops(worst_case=True),
+        [EXAMPLE_ROUNDOFF_RATE],
+    ),
+    "resting_arm_on_sufficient_brakes_never_moves": (
+        check_never_moves,
+        resting_estops(worst_case=False),
+        [EXAMPLE_SEQUENTIAL_DECISIONS],
+    ),
+    "resting_arm_after_category_one_ramp_never_moves": (
+        check_never_moves,
+        ramped_resting_estops(),
+        [EXAMPLE_CATEGORY_ONE_AT_REST],
+    ),
+}
 
 
-@DEFAULT
-@example(case=EXAMPLE_DECIDED_BEFORE_IDEAL_LOCKS)
-@example(case=EXAMPLE_RAMPED_BRAKE_STARTS_AT_REST)
-@example(case=EXAMPLE_ROUNDOFF_RATE)
-@given(case=estops())
-def test_brake_work_never_decreases(case):
-    check_brake_work(case)
+def run_property(name: str, examples: int) -> None:
+    """Run property ``name`` on its recorded examples and ``examples`` drawn ones."""
+    check, strategy, recorded = PROPERTIES[name]
+    test = given(case=strategy)(check)
+    for case in reversed(recorded):
+        test = example(case=case)(test)
+    _settings(examples)(test)()
 
 
-@pytest.mark.slow
-@MANY
-@example(case=EXAMPLE_DECIDED_BEFORE_IDEAL_LOCKS)
-@example(case=EXAMPLE_RAMPED_BRAKE_STARTS_AT_REST)
-@example(case=EXAMPLE_ROUNDOFF_RATE)
-@given(case=estops())
-def test_brake_work_never_decreases_many(case):
-    check_brake_work(case)
-
-
-@DEFAULT
-@example(case=EXAMPLE_LOCK_AT_T0)
-@given(case=estops())
-def test_energy_balance_within_integrator_accuracy(case):
-    check_energy_balance(case)
-
-
-@pytest.mark.slow
-@MANY
-@example(case=EXAMPLE_LOCK_AT_T0)
-@given(case=estops())
-def test_energy_balance_within_integrator_accuracy_many(case):
-    check_energy_balance(case)
-
-
-@DEFAULT
-@example(case=EXAMPLE_WEAK_BRAKES)
-@example(case=EXAMPLE_DECISIONS_DO_NOT_SETTLE)
-@example(case=EXAMPLE_DECIDED_BEFORE_IDEAL_LOCKS)
-@given(case=estops())
-def test_report_has_no_nan(case):
-    check_report(case)
-
-
-@pytest.mark.slow
-@MANY
-@example(case=EXAMPLE_WEAK_BRAKES)
-@example(case=EXAMPLE_DECISIONS_DO_NOT_SETTLE)
-@example(case=EXAMPLE_DECIDED_BEFORE_IDEAL_LOCKS)
-@given(case=estops())
-def test_report_has_no_nan_many(case):
-    check_report(case)
-
-
-@DEFAULT
-@example(case=EXAMPLE_STRONG_RAMPED_BRAKES)
-@given(case=holding_estops())
-def test_brakes_that_can_hold_stop_every_joint(case):
-    check_all_stop(case)
-
-
-@pytest.mark.slow
-@MANY
-@example(case=EXAMPLE_STRONG_RAMPED_BRAKES)
-@given(case=holding_estops())
-def test_brakes_that_can_hold_stop_every_joint_many(case):
-    check_all_stop(case)
-
-
-@DEFAULT
-@example(case=EXAMPLE_ROUNDOFF_RATE)
-@given(case=resting_estops(worst_case=True))
-def test_resting_arm_on_strong_brakes_never_moves(case):
-    check_never_moves(case)
+@pytest.mark.parametrize("name", PROPERTIES)
+def test_property(name):
+    run_property(name, DEFAULT_EXAMPLES)
 
 
 @pytest.mark.slow
-@MANY
-@example(case=EXAMPLE_ROUNDOFF_RATE)
-@given(case=resting_estops(worst_case=True))
-def test_resting_arm_on_strong_brakes_never_moves_many(case):
-    check_never_moves(case)
-
-
-@DEFAULT
-@example(case=EXAMPLE_SEQUENTIAL_DECISIONS)
-@given(case=resting_estops(worst_case=False))
-def test_resting_arm_on_sufficient_brakes_never_moves(case):
-    check_never_moves(case)
-
-
-@pytest.mark.slow
-@MANY
-@example(case=EXAMPLE_SEQUENTIAL_DECISIONS)
-@given(case=resting_estops(worst_case=False))
-def test_resting_arm_on_sufficient_brakes_never_moves_many(case):
-    check_never_moves(case)
-
-
-@DEFAULT
-@example(case=EXAMPLE_CATEGORY_ONE_AT_REST)
-@given(case=ramped_resting_estops())
-def test_resting_arm_after_category_one_ramp_never_moves(case):
-    check_never_moves(case)
-
-
-@pytest.mark.slow
-@MANY
-@example(case=EXAMPLE_CATEGORY_ONE_AT_REST)
-@given(case=ramped_resting_estops())
-def test_resting_arm_after_category_one_ramp_never_moves_many(case):
-    check_never_moves(case)
+@pytest.mark.parametrize("name", PROPERTIES)
+def test_property_many(name):
+    run_property(name, MANY_EXAMPLES)
 
 
 # ---------------------------------------------------------------------------------------------
