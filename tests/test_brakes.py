@@ -6,7 +6,7 @@ import pytest
 from conftest import RESLIP_BRAKE, RESLIP_KINDS, robot, run_reslip
 
 from vtm_pin import RK4, LockEvent, Problem, compute_energy_momentum, compute_M, simulate
-from vtm_pin.brakes import Brake, BrakeMode
+from vtm_pin.brakes import ROUNDOFF, Brake, BrakeMode
 from vtm_pin.exceptions import BrakeError
 from vtm_pin.friction import Coulomb, Stribeck
 from vtm_pin.phase import Phase
@@ -132,11 +132,14 @@ def test_state_machine_sticks_reverses_and_slips():
         if event.kind == "reverse":
             assert abs(event.holding_torque) > static
         if event.kind == "slip":
-            # The slip event is the root of static - |hold|: located to round-off.
-            assert abs(abs(event.holding_torque) - static) < 1e-8
-    # While stuck, the required holding torque stays within the static limit.
+            # The slip event is the root of static + ROUNDOFF |hold| - |hold| (the stick
+            # decision's own test; the only holding torque is this joint's): located to
+            # round-off.
+            limit = static + ROUNDOFF * abs(event.holding_torque)
+            assert abs(abs(event.holding_torque) - limit) < 1e-8
+    # While stuck, the required holding torque stays within the static limit (+ round-off).
     stuck = result.modes[:, 0] == BrakeMode.STUCK
-    assert np.all(np.abs(result.holding[stuck, 0]) <= static + 1e-8)
+    assert np.all(np.abs(result.holding[stuck, 0]) <= static * (1.0 + ROUNDOFF) + 1e-8)
 
 
 def test_event_times_are_located_to_1e10_seconds():

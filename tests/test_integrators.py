@@ -127,14 +127,18 @@ def test_event_from_exactly_zero_fires_when_the_function_comes_back(integrator, 
     assert segment.t[-1] == pytest.approx(1.0, abs=1e-12)
 
 
-def test_event_from_exactly_zero_leaving_to_the_far_side_fires_at_the_step_end():
+@pytest.mark.parametrize("t0", [0.0, 0.3, 1e3])
+def test_event_from_exactly_zero_leaving_to_the_far_side_fires_at_once(t0):
     """No point on the before side: the handler's state disagrees with the motion at once,
-    so the event is taken at the end of the step (never at a zero-length step)."""
+    so the event is taken at once (the event tolerance, or a few ulps of t where that is
+    larger), not after a whole step of wrong motion, and never at a zero-length step."""
     from vtm_pin.integrators import StateEvent
 
     event = StateEvent(lambda t, y: float(y[0]), -1)
-    segment = RK4(0.5).integrate(lambda t, y: np.array([-1.0]), 0.0, np.zeros(1), 2.0, [event])
-    assert segment.event == 0 and segment.t[-1] == 0.5
+    rk4 = RK4(0.5, event_tol=1e-14)
+    segment = rk4.integrate(lambda t, y: np.array([-1.0]), t0, np.zeros(1), t0 + 2.0, [event])
+    assert segment.event == 0
+    assert t0 < segment.t[-1] <= t0 + max(1e-14, 8 * np.spacing(t0 + 0.5))
 
 
 def van_der_pol(t, y):

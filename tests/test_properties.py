@@ -617,6 +617,20 @@ def check_all_stop(case: EStop) -> None:
     assert 0.0 <= report.all_stopped_time <= case.duration - report.signal_time
 
 
+def check_holds_within_static(case: EStop) -> None:
+    """A stuck joint's holding torque stays within its static torque at every sample.
+
+    Tolerance: the stick/slip decision's round-off (vtm_pin.brakes.ROUNDOFF of the largest
+    holding torque) plus 1e-6 of it for the slip event's location on the step (1e-14 s).
+    """
+    result = case.run()
+    report = stopping_report(case, result)
+    scale = max(1.0, float(np.nanmax(np.abs(result.holding), initial=0.0)))
+    for joint in report.joints:
+        if math.isfinite(joint.holding_margin):
+            assert joint.holding_margin >= -1e-6 * scale, (joint, _events(result))
+
+
 def check_report(case: EStop) -> None:
     r = arm(case.robot)
     result = case.run()
@@ -696,6 +710,14 @@ PROPERTIES = {
         check_energy_balance,
         estops(),
         [EXAMPLE_LOCK_AT_T0],
+    ),
+    # Category 0 only: there the lock's multiplier is exactly the friction a stuck joint needs;
+    # in category 1 the drives' computed torque depends on which joints are locked, and a
+    # joint held by the acceleration test (vtm_pin.brakes, step 3) may show a larger one.
+    "stuck_joints_hold_within_static": (
+        check_holds_within_static,
+        estops().filter(lambda case: case.stop.category == 0),
+        [],
     ),
     "report_has_no_nan": (
         check_report,

@@ -31,6 +31,8 @@ from .results import BrakeEvent, BrakeEventKind
 #: above the integrator's round-off and event-location residuals (<= 1e-12 rad/s measured),
 #: far below any rate that moves a joint measurably (1e-9 rad in a second).
 REST_RATE = 1e-9
+#: Relative round-off of torques and accelerations in the stick/slip decisions [-].
+ROUNDOFF = 1e-9
 
 
 class BrakeMode(IntEnum):
@@ -230,6 +232,8 @@ class BrakeMachine:
         3. A released joint must then accelerate the way it slides, now that the others
            slide too; if it would not, it slides the other way, or, if neither direction
            is consistent, its static friction holds it and it sticks.
+        4. Every stuck joint must still hold under the loads of the final modes; one that
+           cannot slips, worst-loaded first.
 
         A released joint stays released at this instant, so the decisions end.
 
@@ -239,12 +243,37 @@ class BrakeMachine:
             due: Joints whose state event fired now (reached v = 0, or hit the static
                 limit): a stuck one among them is released even within round-off of it.
         """
+        self._held_by_motion: set[int] = set()  # stuck in step 3, by the acceleration test
         self._follow_reversals(t, world)
         resting = self._resting(world)
         if resting:
             forced = {i for i in due if i in world.locked}  # at the static limit now
             released = self._hold_or_release(t, world, resting, forced)
             self._check_released(t, world, released)
+            self._verify_stuck(t, world)
+
+    def _verify_stuck(self, t: float, world: BrakeWorld) -> None:
+        """Step 4 of :meth:`settle`: stuck joints must hold under the final modes' loads.
+
+        Step 3 changes sliding directions and sticks joints, which changes the loads on the
+        joints stuck in step 2; one that can no longer be held slips (worst-loaded first).
+        """
+        for _ in range(len(self.joints)):
+            stuck = [
+                i
+                for i in world.locked
+                if self.modes[i] is BrakeMode.STUCK and i not in self._held_by_motion
+            ]
+            if not stuck:
+                return
+            hold = world.holding_torque(t, world.locked)
+            limits = {i: self.static(t, i) for i in stuck}
+            i = _worst_loaded(stuck, hold, limits, set())
+            if i is None:
+                return
+            self._v_event.setdefault(i, 0.0)
+            self._release(t, world, i, float(hold[i]), limits[i])
+            self._check_released(t, world, [i])
 
     def state_events(
         self,
@@ -276,7 +305,11 @@ class BrakeMachine:
             if self.modes[j] is BrakeMode.STUCK and brake is not None and not brake.ideal:
 
                 def margin(t: float, y: np.ndarray, j: int = j) -> float:
-                    return self.static(t, j) - abs(holding(t, y)[j])
+                    # The stick decision's own test (with its round-off), so a joint that
+                    # stuck starts with a margin >= 0 and its slip is always a crossing.
+                    hold = holding(t, y)
+                    scale = max(1.0, float(np.max(np.abs(hold))))
+                    return self.static(t, j) + ROUNDOFF * scale - abs(hold[j])
 
                 events.append(BrakeStateEvent(StateEventKind.SLIP, j, StateEvent(margin, -1)))
         return events
@@ -300,23 +333,38 @@ class BrakeMachine:
         return released
 
     def _check_released(self, t: float, world: BrakeWorld, released: list[int]) -> None:
-        """Step 3 of :meth:`settle`: flip or stick released joints that would not slide."""
+        """Step 3 of :meth:`settle`: flip or stick released joints that would not slide.
+
+        A joint that accelerates against its sliding direction (beyond round-off, now that
+        the others slide too) slides the other way if that is consistent; if neither
+        direction is, a friction torque between the two sliding torques holds it: it sticks.
+        """
         for _ in range(2 * len(released)):
             wrong = self._against_motion(t, world, released)
             if wrong is None:
                 return
-            self.modes[wrong] = mode_of_motion(-self.modes[wrong].sign) or BrakeMode.FREE
+            mode = self.modes[wrong]
+            self.modes[wrong] = mode_of_motion(-mode.sign) or BrakeMode.FREE
             if self._against_motion(t, world, [wrong]) is None:
                 self.events.append(BrakeEvent(t, self.joints[wrong], BrakeEventKind.REVERSE, 0.0))
                 continue
+            # Neither direction: the acceleration changes sign between the two sliding
+            # torques, so a friction torque within them holds the joint (even where the
+            # trial lock's multiplier, which the drives' computed torque shifts, says more).
             hold = world.holding_torque(t, [*world.locked, wrong])
             self._stick(t, world, [wrong], hold, {wrong: self.static(t, wrong)})
+            self._held_by_motion.add(wrong)
+            released = [i for i in released if i != wrong]
 
     def _against_motion(self, t: float, world: BrakeWorld, joints: Sequence[int]) -> int | None:
-        """The first of ``joints`` (free, sliding from rest) accelerating against its mode."""
+        """The first of ``joints`` (free, sliding from rest) accelerating against its mode.
+
+        Accelerations within round-off (1e-9 of the largest) count as none.
+        """
         a = world.accelerations(t)
+        tolerance = ROUNDOFF * max(1.0, float(np.max(np.abs(a)))) if a.size else 0.0
         for i in joints:
-            if i not in world.locked and a[i] * self.modes[i].sign < 0.0:
+            if i not in world.locked and a[i] * self.modes[i].sign < -tolerance:
                 return i
         return None
 
@@ -392,8 +440,19 @@ def _worst_loaded(
         return min(forced)
     worst, ratio = None, 1.0
     for i in resting:
-        if abs(hold[i]) > limits[i]:
+        if not _holdable(float(hold[i]), limits[i], hold):
             r = math.inf if limits[i] == 0.0 else abs(hold[i]) / limits[i]
             if worst is None or r > ratio:
                 worst, ratio = i, r
     return worst
+
+
+def _holdable(hold: float, limit: float, holds: np.ndarray) -> bool:
+    """Whether a brake with static ``limit`` [N m] holds a joint needing ``hold`` [N m].
+
+    A load within round-off (:data:`ROUNDOFF` of the largest holding torque, at least 1 N m
+    times it) counts as none: a brake whose normal force is still 0 at engagement then
+    holds a joint with no load, instead of starting it in the direction of a round-off sign.
+    """
+    scale = max(1.0, float(np.max(np.abs(holds)))) if holds.size else 1.0
+    return abs(hold) <= limit + ROUNDOFF * scale

@@ -249,7 +249,7 @@ def _run(args: argparse.Namespace) -> int:
     except OutputError as exc:
         raise ScenarioError("command line", "--out", exc.problem) from exc
     if args.json:
-        print(json.dumps(output.summary, indent=2))
+        print(json.dumps(output.summary, indent=2, allow_nan=False))
     elif not args.quiet:
         print(format_summary(output.summary))
         for name, report in output.stopping.items():

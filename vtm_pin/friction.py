@@ -143,8 +143,11 @@ class Stribeck(Coulomb):
 
     def kinetic(self, speed: float) -> float:
         """tau_c + (tau_s - tau_c) exp(-(w / w_s)^2) [N m]."""
+        x = speed / self.stribeck_velocity
+        if not x < 30.0:  # exp(-900) is below every float: Coulomb (and no overflow)
+            return self.sliding_torque
         drop = self.breakaway_torque - self.sliding_torque
-        return self.sliding_torque + drop * math.exp(-((speed / self.stribeck_velocity) ** 2))
+        return self.sliding_torque + drop * math.exp(-(x**2))
 
     def describe(self) -> dict[str, Any]:
         """The law and its figures, for summary.json (SI units, motor side)."""

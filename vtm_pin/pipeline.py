@@ -200,7 +200,9 @@ def write_outputs(
         parent = out.resolve().parent
         parent.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
-        (staging / "summary.json").write_text(json.dumps(output.summary, indent=2) + "\n")
+        (staging / "summary.json").write_text(
+            json.dumps(output.summary, indent=2, allow_nan=False) + "\n"
+        )
         for rule, result in output.results.items():
             suffix = "" if rule == output.rule else f"_{rule}"
             write_trajectory(staging / f"trajectory{suffix}.csv", result)

@@ -15,7 +15,7 @@ import numpy as np
 
 from .brakes import Brake, BrakeMode
 from .kinematics import compute_tool_jacobian, compute_tool_motion
-from .results import RowKind, SimulationResult
+from .results import BrakeEventKind, RowKind, SimulationResult
 from .robot import Robot
 from .stop import DEFAULT_REST_SPEED
 
@@ -126,7 +126,7 @@ def compute_stopping_report(
         for name in event.lock:
             j = robot.joint_index(name)
             if locked_for_good[j]:
-                latch_time[j] = event.t - t_signal
+                latch_time[j] = max(0.0, event.t - t_signal)  # locked before: at once
         for label, impulse in zip(event.rows, -event.transition.Lambda, strict=True):
             if label.kind is RowKind.JOINT:
                 lock_impulse[robot.joint_index(label.name)] += impulse
@@ -138,7 +138,8 @@ def compute_stopping_report(
 
     hold = result.holding
     by_joint = {robot.joint_index(b.joint): b for b in brakes}
-    engaged = {e.joint: e.t for e in result.brake_events if e.kind in ("engage", "lock")}
+    engaging = (BrakeEventKind.ENGAGE, BrakeEventKind.LOCK)
+    engaged = {e.joint: e.t for e in result.brake_events if e.kind in engaging}
     peak_hold = np.full(n, np.nan)
     margin = np.full(n, np.nan)
     for j in range(n):

@@ -97,43 +97,70 @@ def locate(
     h: float,
     event_tol: float,
 ) -> tuple[float, int]:
-    """Earliest root in (0, h] among the fired events, on the continuous solution ``along``.
+    """Earliest root in (0, h] among the events, on the continuous solution ``along``.
+
+    The fired events (crossed between the step's ends) are located first. Then every event
+    is checked at the earliest root found: one that has already crossed there (it crossed
+    and came back within the step, say a stuck joint whose load spikes while another joint
+    comes to rest) has an earlier root, which is located in turn.
 
     Returns:
         ``(tau, index)``: the offset from ``tk`` [s], on the side where the crossing has
         happened, and the event's index.
     """
-    best: tuple[float, int] | None = None
-    for i in fired:
-        event = events[i]
-
-        def phi(tau: float, event: StateEvent = event) -> float:
-            return event.g(tk + tau, along(tau))
-
-        g0 = event.g(tk, yk)
-        g1 = phi(h)
-        start = _departure(event, phi, h) if g0 == 0.0 else 0.0
-        if g1 == 0.0 or start == h:
-            tau = h
-        else:
-            tau = scipy.optimize.brentq(phi, start, h, xtol=event_tol, rtol=1e-15)
-            while not event.crossed(g0, phi(tau)) and tau < h:
-                tau = min(h, tau + event_tol)
-        if best is None or tau < best[0]:
-            best = (tau, i)
-    assert best is not None
+    g0 = [event.g(tk, yk) for event in events]
+    best = min((_root(events[i], g0[i], tk, along, h, event_tol), i) for i in fired)
+    for _ in range(len(events)):
+        y_best = along(best[0])
+        earlier = [
+            i
+            for i, event in enumerate(events)
+            if i != best[1] and event.crossed(g0[i], event.g(tk + best[0], y_best))
+        ]
+        if not earlier:
+            return best
+        best = min(
+            [best, *((_root(events[i], g0[i], tk, along, best[0], event_tol), i) for i in earlier)]
+        )
     return best
 
 
-def _departure(event: StateEvent, phi: Callable[[float], float], h: float) -> float:
-    """A point where ``phi``, 0 at the start, is before the crossing; ``h`` if none is found.
+def _root(
+    event: StateEvent,
+    g0: float,
+    tk: float,
+    along: Callable[[float], np.ndarray],
+    h: float,
+    event_tol: float,
+) -> float:
+    """The offset [s] in (0, h] where ``event`` crosses, on the side after the crossing."""
+
+    def phi(tau: float) -> float:
+        return event.g(tk + tau, along(tau))
+
+    g1 = phi(h)
+    start = _departure(event, phi, h) if g0 == 0.0 else 0.0
+    if g1 == 0.0:
+        return h
+    if start is None:
+        # It left zero straight for the far side: the handler's state disagrees with the
+        # motion from the start, so take the event at once (the smallest step that still
+        # advances t), not after a whole step of wrong motion.
+        return min(h, max(event_tol, 8.0 * float(np.spacing(abs(tk) + h))))
+    tau = float(scipy.optimize.brentq(phi, start, h, xtol=event_tol, rtol=1e-15))
+    while not event.crossed(g0, phi(tau)) and tau < h:
+        tau = min(h, tau + event_tol)
+    return tau
+
+
+def _departure(event: StateEvent, phi: Callable[[float], float], h: float) -> float | None:
+    """A point where ``phi``, 0 at the start, is before the crossing; None if none is found.
 
     Searched at h / 2, h / 4, ... down to 2^-60 h: a function that leaves zero with a
-    non-zero slope is on its side at some of them. If it left straight for the far side
-    (the handler's state disagrees with the motion), the event is taken at the step end.
+    non-zero slope is on its side at some of them.
     """
     for k in range(1, 61):
         tau = h * 0.5**k
         if event.before(phi(tau)):
             return tau
-    return h
+    return None
