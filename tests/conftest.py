@@ -37,11 +37,12 @@ def _strict_numpy():
 #: from q = (0, 1.2, 0) rad, v = (2, 0, 0) rad/s the brake (slide 300, static 400 N m) must
 #: reverse three times, stick, slip, stick and slip again within 3 s.
 RESLIP_BRAKE = Brake("joint1", friction=Coulomb(300.0, 400.0))
+Q0_RESLIP, V0_RESLIP = np.array([0.0, 1.2, 0.0]), np.array([2.0, 0.0, 0.0])  # [rad], [rad/s]
 RESLIP_KINDS = ["engage", "reverse", "reverse", "reverse", "stick", "slip", "stick", "slip"]
 
 
 def run_reslip(integrator, duration: float = 3.0) -> SimulationResult:
     """The re-slip pendulum run with the given integrator."""
-    q0, v0 = np.array([0.0, 1.2, 0.0]), np.array([2.0, 0.0, 0.0])
+    q0, v0 = Q0_RESLIP, V0_RESLIP
     problem = Problem(robot("planar_3r"), q0, v0, duration, brakes=(RESLIP_BRAKE,), stop=Stop(0.0))
     return simulate(problem, integrator)

@@ -117,3 +117,22 @@ def test_bad_friction_keys_are_refused(tmp_path, capsys, brake, message):
     err = capsys.readouterr().err.strip()
     assert "brakes.joint_2" in err and message in err and "\n" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_stribeck_brake_never_holds_beyond_its_static_torque():
+    """The re-slip pendulum with a Stribeck brake: at v = 0 its kinetic torque equals the
+    breakaway torque, so a released joint's acceleration is zero to round-off. It once stuck
+    at once and was then held up to 3973 N m against a 400 N m static torque. Tolerance: the
+    stick/slip test's own round-off (ROUNDOFF of the holding torque) plus 1e-8 N m."""
+    from conftest import Q0_RESLIP, V0_RESLIP
+
+    from vtm_pin import RK4
+    from vtm_pin.brakes import ROUNDOFF, BrakeMode
+
+    brake = Brake("joint1", friction=Stribeck(300.0, 400.0, stribeck_velocity=0.5))
+    problem = Problem(robot("planar_3r"), Q0_RESLIP, V0_RESLIP, 3.0, brakes=(brake,), stop=Stop())
+    result = simulate(problem, RK4(1e-4))
+    kinds = [str(e.kind) for e in result.brake_events]
+    assert "stick" in kinds and "slip" in kinds  # it sticks, and slips again at its limit
+    stuck = (result.modes[:, 0] == BrakeMode.STUCK) & np.isfinite(result.holding[:, 0])
+    assert np.all(np.abs(result.holding[stuck, 0]) <= 400.0 * (1.0 + ROUNDOFF) + 1e-8)
