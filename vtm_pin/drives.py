@@ -30,7 +30,6 @@ class DriveLaw(ABC):
         t: float,
         q_f: np.ndarray,
         v_f: np.ndarray,
-        free: np.ndarray,
     ) -> np.ndarray:
         """Drive torques [N m] on the free joints, shape (k,).
 
@@ -40,8 +39,15 @@ class DriveLaw(ABC):
             t: Time [s].
             q_f: Free joint positions [rad].
             v_f: Free joint rates [rad/s].
-            free: Indices of the free joints in the full model.
         """
+
+    def bind(self, free: np.ndarray) -> DriveLaw:
+        """The law bound to one phase's free joints (indices in the full model).
+
+        Bound once per phase, so that :meth:`torques`, called at every right-hand side,
+        indexes nothing.
+        """
+        return self
 
     @property
     def acts(self) -> bool:
@@ -60,7 +66,6 @@ class DriveOff(DriveLaw):
         t: float,
         q_f: np.ndarray,
         v_f: np.ndarray,
-        free: np.ndarray,
     ) -> np.ndarray:
         """Zero torques [N m]."""
         return np.zeros(q_f.size)
@@ -82,7 +87,6 @@ class DriveHold(DriveLaw):
         t: float,
         q_f: np.ndarray,
         v_f: np.ndarray,
-        free: np.ndarray,
     ) -> np.ndarray:
         """The inverse-dynamics torques of zero acceleration [N m]."""
         return np.asarray(pin.rnea(model, data, q_f, v_f, np.zeros(q_f.size)))
@@ -94,11 +98,20 @@ class DriveRamp(DriveLaw):
 
     Attributes:
         stop: The category-1 stop (ramp time, torque limit, feedback gain).
-        v_signal: Joint rates at the stop signal [rad/s], shape (n,).
+        v_signal: Joint rates at the stop signal [rad/s], shape (n,); after :meth:`bind`,
+            those of the free joints.
+        limit: Torque limits of the free joints [N m], set by :meth:`bind`.
     """
 
     stop: Stop
     v_signal: np.ndarray
+    limit: np.ndarray | None = None
+
+    def bind(self, free: np.ndarray) -> DriveRamp:
+        """The ramp for the free joints ``free``."""
+        assert self.stop.torque_limit is not None
+        limit = np.asarray(self.stop.torque_limit, dtype=float)[free]
+        return DriveRamp(self.stop, np.asarray(self.v_signal)[free], limit)
 
     def torques(
         self,
@@ -107,15 +120,12 @@ class DriveRamp(DriveLaw):
         t: float,
         q_f: np.ndarray,
         v_f: np.ndarray,
-        free: np.ndarray,
     ) -> np.ndarray:
         """RNEA of a_ref + gain (v_ref - v), v_ref falling linearly to 0, clipped [N m]."""
         stop = self.stop
-        assert stop.ramp_time is not None and stop.torque_limit is not None
-        v_signal = self.v_signal[free]
+        assert stop.ramp_time is not None and self.limit is not None
         s = (t - stop.t) / stop.ramp_time
-        v_ref = v_signal * max(0.0, 1.0 - s)
-        a_ref = -v_signal / stop.ramp_time if s < 1.0 else 0.0 * v_f
+        v_ref = self.v_signal * max(0.0, 1.0 - s)
+        a_ref = -self.v_signal / stop.ramp_time if s < 1.0 else 0.0 * v_f
         tau = pin.rnea(model, data, q_f, v_f, a_ref + stop.gain * (v_ref - v_f))
-        limit = np.asarray(stop.torque_limit, dtype=float)[free]
-        return np.asarray(np.clip(tau, -limit, limit))
+        return np.asarray(np.clip(tau, -self.limit, self.limit))

@@ -51,7 +51,7 @@ class Phase:
         n = robot.nv
         free = topology.free
         self.k = topology.n_free
-        self.drive = DriveOff() if drive is None else drive
+        self.drive = (DriveOff() if drive is None else drive).bind(free)
         on = np.zeros(n, dtype=bool) if drive_on is None else np.asarray(drive_on, dtype=bool)
         self._drive_f = on[free] if self.drive.acts else np.zeros(self.k, dtype=bool)
         self._sliding = [
@@ -89,7 +89,7 @@ class Phase:
         tau_drive = np.zeros(k)
         if self._drive_f.any():
             topology = self.topology
-            tau = self.drive.torques(topology.model, topology.data, t, q_f, v_f, topology.free)
+            tau = self.drive.torques(topology.model, topology.data, t, q_f, v_f)
             tau_drive = np.where(self._drive_f, tau, 0.0)
         tau_brake = np.zeros(k)
         ratio = self.robot.gear_ratio
