@@ -116,6 +116,35 @@ class OutputError(VtmError):
         super().__init__(f"Cannot write the results: {problem}")
 
 
+class SettingError(VtmError):
+    """A setting of a scenario section is out of range; names its key within the section.
+
+    Raised by the modules that build one section of a scenario (``payload``, ``annex_b``);
+    the scenario reader re-raises it as a :class:`ScenarioError` with the full key path.
+
+    Attributes:
+        key: Key within the section (``mass``, ``inertia``, ``extension``), "" for all of it.
+        problem: What is wrong and what is allowed, one line.
+    """
+
+    def __init__(self, key: str, problem: str) -> None:
+        self.key = key
+        self.problem = problem
+        super().__init__(f"'{key}': {problem}" if key else problem)
+
+
+class PayloadError(SettingError):
+    """A payload is not physical, or names a frame the robot does not have."""
+
+
+class ConditionsError(SettingError):
+    """Annex-B test conditions that the robot cannot be posed or moved in."""
+
+
+class StudyError(InputError):
+    """A study file is malformed, or its output folder holds another study's results."""
+
+
 class TransitionError(VtmError):
     """A transition could not be computed (redundant or rank-deficient constraints)."""
 
