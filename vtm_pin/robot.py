@@ -367,7 +367,7 @@ def _check_geometry(model: pin.Model, source: str) -> None:
     triangle inequality of principal moments (each at most the sum of the other two).
     """
     for jid in range(1, model.njoints):
-        problem = _inertia_problem(model.inertias[jid])
+        problem = inertia_problem(model.inertias[jid])
         offset = model.jointPlacements[jid].homogeneous
         if problem is None and not (np.all(np.isfinite(offset)) and _within(offset[:3, 3])):
             problem = (
@@ -389,7 +389,7 @@ def _within(offset: np.ndarray) -> bool:
     return bool(np.max(np.abs(offset)) <= MAX_OFFSET)
 
 
-def _inertia_problem(inertia: pin.Inertia) -> str | None:
+def inertia_problem(inertia: pin.Inertia) -> str | None:
     """What is unphysical about one body's inertia, or None."""
     mass = float(inertia.mass)
     lever, rotational = np.asarray(inertia.lever), np.asarray(inertia.inertia)
