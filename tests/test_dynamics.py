@@ -73,3 +73,19 @@ def test_all_locked_topology_is_frozen():
     q_back, v_back = topology.merge(np.zeros(0))
     np.testing.assert_array_equal(q_back, q)
     np.testing.assert_array_equal(v_back, 0.0)
+
+
+def test_energy_momentum_equals_the_mass_matrix_product():
+    """p = M(q) v from RNEA (no gravity, zero velocity, a = v) equals CRBA's M times v."""
+    from vtm_pin import compute_energy_momentum, load_scenario, run_scenario
+
+    scenario = load_scenario("scenarios/rx160l_estop_cat0.yaml")
+    result = run_scenario(scenario)
+    energy = compute_energy_momentum(scenario.robot, result)
+    model, data = scenario.robot.model, scenario.robot.model.createData()
+    for i in range(0, result.t.size, max(1, result.t.size // 20)):
+        M = compute_M(model, data, result.q[i])
+        p = M @ result.v[i]
+        # 1e-12 relative: the same sums in another order, round-off only
+        assert np.allclose(energy.p[i], p, rtol=1e-12, atol=1e-12 * np.abs(p).max())
+        assert energy.kinetic[i] == pytest.approx(0.5 * result.v[i] @ p, rel=1e-12, abs=1e-12)

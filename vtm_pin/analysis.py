@@ -7,7 +7,6 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .dynamics import compute_M
 from .results import SimulationResult
 from .robot import Robot
 
@@ -35,19 +34,25 @@ class EnergyMomentum:
 
 
 def compute_energy_momentum(robot: Robot, result: SimulationResult) -> EnergyMomentum:
-    """Evaluate M(q) at every sample and derive energies and momenta."""
+    """Momentum p = M(q) v, kinetic energy 1/2 v^T p and potential energy at every sample.
+
+    p comes from RNEA without gravity at zero velocity with the acceleration v, which is
+    M(q) v (armature included) in O(n), without forming M.
+    """
     model = robot.model
     data = model.createData()
+    weightless = pin.Model(model)
+    weightless.gravity = pin.Motion.Zero()
+    weightless_data = weightless.createData()
+    zero = np.zeros(robot.nv)
     k = result.t.size
-    kinetic = np.empty(k)
     potential = np.empty(k)
     p = np.empty((k, robot.nv))
     for i in range(k):
-        q, v = result.q[i], result.v[i]
-        M = compute_M(model, data, q)
-        p[i] = M @ v
-        kinetic[i] = 0.5 * float(v @ p[i])
+        q = result.q[i]
+        p[i] = pin.rnea(weightless, weightless_data, q, zero, result.v[i])
         potential[i] = float(pin.computePotentialEnergy(model, data, q))
+    kinetic = 0.5 * np.einsum("ij,ij->i", result.v, p)
     return EnergyMomentum(
         kinetic=kinetic, potential=potential, p=p, p_free=np.where(result.free, p, np.nan)
     )

@@ -36,12 +36,12 @@ def compute_tool_motion(
     qs = np.atleast_2d(np.asarray(q, dtype=float))
     vs = np.atleast_2d(np.asarray(v, dtype=float))
     positions = np.empty((len(qs), 3))
-    speeds = np.empty(len(qs))
+    velocities = np.empty((len(qs), 3))
     for i, (qi, vi) in enumerate(zip(qs, vs, strict=True)):
         pin.forwardKinematics(model, data, qi, vi)
         positions[i] = pin.updateFramePlacement(model, data, fid).translation
-        speeds[i] = np.linalg.norm(pin.getFrameVelocity(model, data, fid, _LWA).linear)
-    return positions, speeds
+        velocities[i] = pin.getFrameVelocity(model, data, fid, _LWA).linear
+    return positions, np.linalg.norm(velocities, axis=1)
 
 
 def compute_tool_positions(

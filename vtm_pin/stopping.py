@@ -153,7 +153,10 @@ def compute_stopping_report(
         elif brake is not None and stuck.any():
             t0 = engaged[robot.joints[j]]
             ratio = float(robot.gear_ratio[j])
-            limits = np.array([brake.static(t - t0, ratio) for t in result.t[stuck]])
+            if brake.friction.ramp == 0.0:  # full normal force from engagement: one limit
+                limits = np.full(int(stuck.sum()), brake.static(0.0, ratio))
+            else:
+                limits = np.array([brake.static(t - t0, ratio) for t in result.t[stuck]])
             margin[j] = float(np.min(limits - np.abs(hold[stuck, j])))
 
     path, speed = compute_tool_motion(robot, result.q, result.v, tool_frame)
