@@ -233,7 +233,7 @@ def simulate(
             n_q=phase.k,
         )
         rhs_evals += segment.rhs_evals
-        steps += segment.t.size - 1
+        steps += segment.steps
         _check_energy(h, phase, segment.y, segment.t, integrator)
         h.q, h.v, h.extras = trace.add_segment(phase, segment, h, bool(problem.brakes))
         t = float(segment.t[-1])

@@ -63,16 +63,25 @@ class Segment:
     """Solution of y' = f(t, y) on one interval, ended by its end time or a state event.
 
     Attributes:
-        t: Times of the accepted steps, t[0] = start and t[-1] = end or event time [s].
-        y: States at those times, shape (k, len(y0)).
-        rhs_evals: Number of evaluations of f (event location included).
+        t: Sample times, t[0] = start and t[-1] = end or event time [s]: the accepted steps,
+            or with a dense output (dop853's ``output_dt``) the output times between.
+        y: States at those times, shape (k, len(y0)); y[-1] is the state reached.
+        rhs_evals: Number of evaluations of f (event location and dense output included).
         event: Index of the state event that ended the segment, or None.
+        n_steps: Accepted steps, when the samples are not the steps; None: one per sample
+            after the first.
     """
 
     t: np.ndarray
     y: np.ndarray
     rhs_evals: int
     event: int | None = None
+    n_steps: int | None = None
+
+    @property
+    def steps(self) -> int:
+        """Accepted steps of the interval (the last one cut at the event, if any)."""
+        return self.t.size - 1 if self.n_steps is None else self.n_steps
 
 
 class Integrator(Protocol):

@@ -2,9 +2,15 @@
 
 A lean driver around the Dormand-Prince tables of :mod:`.dop853_coefficients`: the same
 method as scipy's ``solve_ivp(method="DOP853")`` without the per-step bookkeeping of its solver
-objects, and with the 7th-order dense output built only for steps in which a state event
-fires. Every interval ends exactly on its end time (the next time event); a state event is
-located on the dense output with Brent's method and the next interval restarts from it.
+objects, and with the 7th-order dense output built only for steps that need it: those in which
+a state event fires and, with ``output_dt``, those that contain an output time. Every interval
+ends exactly on its end time (the next time event); a state event is located on the dense
+output with Brent's method and the next interval restarts from it.
+
+With ``output_dt`` the samples of an interval are its start, the dense output at the global
+grid times k output_dt (k whole, from t = 0, so that intervals restarted at events share one
+grid) strictly inside it, and its end: the accepted steps are left out, the step choice (hence
+the solution) is the same as without it, and the last sample is still the state reached.
 """
 
 from __future__ import annotations
@@ -27,6 +33,14 @@ _A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
 _E3, _E5, _D = coef.E3, coef.E5, coef.D
 _A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
 _STAGES = [(s, np.ascontiguousarray(_A[s, :s]), float(_C[s])) for s in range(1, _S)]
+_N_EXTRA = _A_EXTRA.shape[0]  # 3 more evaluations of f for the dense output of a step
+
+#: Output times closer than this fraction of ``output_dt`` to an interval's start or end are
+#: that start or end (a grid time that is an event time up to round-off, 0.08 vs 80 x 0.001).
+GRID_SLACK = 1e-9
+
+#: The continuous solution of one step as a function of the offset tau [s] from its start.
+Dense = Callable[[float], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -40,6 +54,9 @@ class DOP853:
         event_tol: Absolute tolerance of state-event times [s].
         max_steps: Most steps (accepted and rejected) of one interval: past it the
             integration stops with :class:`~vtm_pin.exceptions.StepLimitError`.
+        output_dt: Sampling period of the output [s]: each segment holds the dense output
+            at the times k output_dt (k whole) strictly inside it, plus its start and end,
+            instead of the accepted steps. None: the accepted steps.
     """
 
     rtol: float = 1e-8
@@ -47,7 +64,17 @@ class DOP853:
     max_step: float = math.inf
     event_tol: float = 1e-14
     max_steps: int = DEFAULT_MAX_STEPS
+    output_dt: float | None = None
     name: str = "dop853"
+
+    def __post_init__(self) -> None:
+        """Refuse an output period that is not a finite positive time.
+
+        Raises:
+            ValueError: ``output_dt`` is zero, negative or not finite.
+        """
+        if self.output_dt is not None and not 0.0 < self.output_dt < math.inf:
+            raise ValueError(f"output_dt = {self.output_dt} must be a finite time > 0 s")
 
     def integrate(
         self,
@@ -65,21 +92,21 @@ class DOP853:
             SimulationError: The step fell below the round-off of t (the derivatives are not
                 finite, or the tolerances cannot be met).
         """
-        if y0.size == 0 or t1 <= t0:
+        grid = None if self.output_dt is None else _Grid(self.output_dt, t0, t1)
+        if y0.size == 0 or t1 <= t0:  # nothing moves: counted as one step, as ever
+            times = [t0, *(grid.remaining() if grid is not None else ()), max(t0, t1)]
             return Segment(
-                t=np.array([t0, max(t0, t1)]), y=np.zeros((2, y0.size)) + y0, rhs_evals=0
+                t=np.array(times), y=np.zeros((len(times), y0.size)) + y0, rhs_evals=0, n_steps=1
             )
-        n = y0.size
-        K = np.empty((_S + 1 + _A_EXTRA.shape[0], n))
+        K = np.empty((_S + 1 + _N_EXTRA, y0.size))
         ts, ys = [t0], [y0]
         t, y = t0, y0
         fy = f(t, y)
-        evals = 1
         h, extra = self._first_step(f, t, y, fy, t1 - t0)
-        evals += extra
+        evals = 1 + extra
         g_prev = [e.g(t, y) for e in events]
         rejected = False
-        steps = 0
+        steps = accepted = 0
         while t < t1:
             steps += 1
             self._check_steps(steps, t0, t, t1)
@@ -94,27 +121,33 @@ class DOP853:
                 self._check_round_off(t, h, fy)
                 rejected = True
                 continue
+            accepted += 1
             t_new = t1 if last else t + h
             if events:
                 g_new = [e.g(t_new, y_new) for e in events]
                 fired = [i for i, e in enumerate(events) if e.crossed(g_prev[i], g_new[i])]
                 if fired:
                     dense = self._dense(f, t, y, y_new, fy, f_new, h, K)
-                    evals += _A_EXTRA.shape[0]
                     tau, index = locate(events, fired, t, y, dense, h, self.event_tol)
+                    if grid is not None:
+                        grid.sample(dense, t, t + tau - grid.slack, ts, ys)
                     ts.append(t + tau)
                     ys.append(dense(tau))
-                    return Segment(np.array(ts), np.array(ys), evals, event=index)
+                    return Segment(np.array(ts), np.array(ys), evals + _N_EXTRA, index, accepted)
                 g_prev = g_new
+            if grid is not None and grid.due(t_new):
+                grid.sample(self._dense(f, t, y, y_new, fy, f_new, h, K), t, t_new, ts, ys)
+                evals += _N_EXTRA
             factor = _MAX_FACTOR if err == 0.0 else min(_MAX_FACTOR, _SAFETY * err**_EXPONENT)
             if rejected:
                 factor = min(1.0, factor)
             rejected = False
             t, y, fy = t_new, y_new, f_new
-            ts.append(t)
-            ys.append(y)
+            if grid is None or last:
+                ts.append(t)
+                ys.append(y)
             h *= factor
-        return Segment(np.array(ts), np.array(ys), evals)
+        return Segment(np.array(ts), np.array(ys), evals, n_steps=accepted)
 
     def _check_steps(self, steps: int, t0: float, t: float, t1: float) -> None:
         """Stop an interval that needs more than ``max_steps`` steps."""
@@ -188,7 +221,7 @@ class DOP853:
         f_new: np.ndarray,
         h: float,
         K: np.ndarray,
-    ) -> Callable[[float], np.ndarray]:
+    ) -> Dense:
         """The step's 7th-order continuous extension, as a function of the offset tau [s]."""
         for s, (a, c) in enumerate(zip(_A_EXTRA, _C_EXTRA, strict=True), start=_S + 1):
             K[s] = f(t + c * h, y + h * (a[:s] @ K[:s]))
@@ -208,6 +241,51 @@ class DOP853:
             return y + out
 
         return dense
+
+
+class _Grid:
+    """The output times k ``dt`` strictly inside one interval [t0, t1], taken in order.
+
+    Attributes:
+        dt: Output period [s].
+        slack: Times this close to t0 or t1 [s] are left to the interval's own samples.
+        k: Index of the next output time.
+        end: Latest output time [s]: t1 - slack.
+    """
+
+    def __init__(self, dt: float, t0: float, t1: float) -> None:
+        self.dt = dt
+        self.slack = GRID_SLACK * dt
+        start = t0 + self.slack
+        k = math.floor(start / dt) + 1
+        while (k - 1) * dt > start:  # floor of a quotient rounded up past a whole number
+            k -= 1
+        while k * dt <= start:
+            k += 1
+        self.k = k
+        self.end = t1 - self.slack
+
+    def due(self, t_new: float) -> bool:
+        """Whether an output time falls in a step ending at ``t_new`` [s]."""
+        return self.k * self.dt <= min(t_new, self.end)
+
+    def sample(
+        self, dense: Dense, t: float, until: float, ts: list[float], ys: list[np.ndarray]
+    ) -> None:
+        """Append the output times up to ``until`` [s] and ``dense`` there (a step from t)."""
+        limit = min(until, self.end)
+        while (time := self.k * self.dt) <= limit:
+            ts.append(time)
+            ys.append(dense(time - t))
+            self.k += 1
+
+    def remaining(self) -> list[float]:
+        """All the output times left [s] (an interval in which nothing moves)."""
+        times = []
+        while (time := self.k * self.dt) <= self.end:
+            times.append(time)
+            self.k += 1
+        return times
 
 
 def _rms(x: np.ndarray) -> float:
