@@ -295,7 +295,7 @@ def semantic(rng: random.Random) -> Case:
     elif kind == "stop-late":
         doc["stop"], key = {"t": duration + 1.0}, "stop.t"
     elif kind == "cat1-limit":
-        doc["stop"], key = {"category": 1, "ramp_time": 0.1}, "stop"
+        doc["stop"], key = {"category": 1, "torque_limit": 10.0}, "stop"  # no ramp_time
     elif kind == "brakes-no-stop":
         doc.pop("stop", None)
         doc["brakes"], key = {joint: {"ideal": True}}, "brakes"

@@ -231,10 +231,10 @@ def test_list_robots_and_scenarios(capsys):
 
 def test_list_scenarios_marks_invalid_files_and_bad_folders(tmp_path, capsys):
     (tmp_path / "good.yaml").write_text("robot: planar_3r\ninitial: {q: [0, 0, 0]}\nduration: 1\n")
-    (tmp_path / "bad.yaml").write_text("robot: planar_3r\nduration: -1\n")
+    (tmp_path / "bad.yaml").write_text("robot: planar_3r\ninitial: {q: [0, 0, 0]}\n")
     assert main(["list", "scenarios", "--dir", str(tmp_path)]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[1].split() == ["bad", "-", "-", "INVALID:", "'initial'", "is", "missing"]
+    assert lines[1].split() == ["bad", "-", "-", "INVALID:", "'duration'", "is", "missing"]
     assert lines[2].split() == ["good", "planar_3r", "1"]
     assert main(["list", "scenarios", "--dir", str(tmp_path / "nowhere")]) == 1
     assert capsys.readouterr().err.strip().endswith("nowhere: is not a folder")

@@ -26,7 +26,7 @@ import tomllib
 from conftest import ROOT, SCENARIOS
 
 #: What a wheel is built from: the build configuration and what it names.
-SOURCES = ["pyproject.toml", "README.md", "vtm_pin", "robots", "scenarios"]
+SOURCES = ["pyproject.toml", "README.md", "vtm_pin", "robots", "scenarios", "studies"]
 #: Longest time one step may take [s]: a wheel build, an install, a command.
 STEP_TIMEOUT = 600
 
@@ -118,8 +118,13 @@ def test_pyproject_lists_every_package():
         ".".join(path.parent.relative_to(ROOT).parts)
         for path in (ROOT / "vtm_pin").rglob("__init__.py")
     }
-    assert set(config["packages"]) == found | {"vtm_pin.robots", "vtm_pin.scenarios"}
-    assert config["package-dir"] == {"vtm_pin.robots": "robots", "vtm_pin.scenarios": "scenarios"}
+    data = {
+        "vtm_pin.robots": "robots",
+        "vtm_pin.scenarios": "scenarios",
+        "vtm_pin.studies": "studies",
+    }
+    assert set(config["packages"]) == found | set(data)
+    assert config["package-dir"] == data
 
 
 def test_wheel_runs_from_another_folder(tmp_path):

@@ -1,4 +1,4 @@
-"""Command-line interface: ``vtm-pin run SCENARIO.yaml`` and ``vtm-pin list robots|scenarios``."""
+"""Command line: ``vtm-pin run SCENARIO``, ``vtm-pin study STUDY`` and ``vtm-pin list``."""
 
 from __future__ import annotations
 
@@ -9,23 +9,34 @@ import math
 import os
 import sys
 import textwrap
+import time
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from importlib.metadata import version
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 from tqdm import tqdm
 
 from .__main__ import forget_interrupt
-from .exceptions import OutputError, ScenarioError, UnsupportedJoint, VtmError, VtmWarning
+from .exceptions import (
+    OutputError,
+    ScenarioError,
+    StudyError,
+    UnsupportedJoint,
+    VtmError,
+    VtmWarning,
+    excerpt,
+)
 from .integrators import INTEGRATORS
 from .pipeline import Progress, check_output_folder, find_scenario, run, write_outputs
 from .report import format_stopping, format_summary, integrator_settings
 from .robot import list_example_robots, list_local_robots, load_robot
 from .scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
+from .study import find_study, load_study
+from .study_runner import CASES_FOLDER, format_study, run_study
 from .transitions import TRANSITIONS
 
 #: Exit codes: success, a user error (bad scenario, robot or option value), bad usage of the
@@ -50,6 +61,7 @@ exit status:
 examples:
   vtm-pin run pendulum3r --compare naive
   vtm-pin run scenarios/rx160l_estop_cat0.yaml --integrator dop853 --rtol 1e-8 --json
+  vtm-pin study ur10_annex_b --out results/ur10_annex_b --workers 2
   vtm-pin list scenarios
 """
 
@@ -190,16 +202,12 @@ def _parser() -> argparse.ArgumentParser:
         help="most integrator steps (rk4/euler: of the run, refused up front; dop853: between "
         "two events), overriding the scenario's integrator.max_steps (default 1000000)",
     )
-    output = run.add_mutually_exclusive_group()
-    output.add_argument(
-        "--quiet", action="store_true", help="print nothing but warnings and errors"
+    run.add_argument(
+        "--no-plots", action="store_true", help="write no PNG figures (faster, for scripts)"
     )
-    output.add_argument(
-        "--json",
-        action="store_true",
-        help="print summary.json to stdout instead of the tables (no progress bar)",
-    )
+    _output_options(run)
     run.set_defaults(func=_run)
+    _study_parser(sub, formatter)
 
     listing = sub.add_parser(
         "list",
@@ -230,6 +238,70 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _output_options(parser: argparse.ArgumentParser) -> None:
+    output = parser.add_mutually_exclusive_group()
+    output.add_argument(
+        "--quiet", action="store_true", help="print nothing but warnings and errors"
+    )
+    output.add_argument(
+        "--json",
+        action="store_true",
+        help="print summary.json to stdout instead of the tables (no progress bar)",
+    )
+
+
+def _study_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
+    study = sub.add_parser(
+        "study",
+        help="run a study: a base scenario over a grid or a sample of its settings",
+        description=_wrap(
+            "Run STUDY: a study file (a base scenario and what varies), or the name of a "
+            "shipped study. Each case is a full run; a failed case is recorded with its "
+            "message and the study goes on. Finished cases are stored in DIR/cases as they "
+            "complete: run the same command again after an interruption and only the missing "
+            "cases are computed. Writes results.parquet, results.csv, summary.json, the "
+            "stopping graphs, the Annex-B table and report.html into --out."
+        ),
+        epilog=_EPILOG,
+        formatter_class=formatter,
+    )
+    study.add_argument("study", metavar="STUDY", help="study file, or a shipped study's name")
+    study.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="output folder (default: results/<study name>); reused to resume",
+    )
+    where = study.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="processes on this machine (default: all cores)",
+    )
+    where.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="send the cases to this Dask scheduler, e.g. tcp://host:8786 (needs the cluster "
+        "extra; the workers need vtm_pin and the scenario's robot files)",
+    )
+    _output_options(study)
+    study.set_defaults(func=_study)
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{excerpt(text)}' is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
+    return value
+
+
 def _wrap(text: str) -> str:
     return textwrap.fill(text, width=88)
 
@@ -245,7 +317,7 @@ def _run(args: argparse.Namespace) -> int:
     with _progress(scenario, show) as progress:
         output = run(scenario, transition=args.transition, compare=args.compare, progress=progress)
     try:
-        written = write_outputs(output, out)
+        written = write_outputs(output, out, figures={} if args.no_plots else None)
     except OutputError as exc:
         raise ScenarioError("command line", "--out", exc.problem) from exc
     if args.json:
@@ -256,6 +328,45 @@ def _run(args: argparse.Namespace) -> int:
             print()
             print(format_stopping(name, report))
         print(f"\nwrote {out}/: {', '.join(written)}")
+    return EXIT_OK
+
+
+def _study(args: argparse.Namespace) -> int:
+    study = load_study(find_study(args.study))
+    out = args.out if args.out is not None else Path("results") / study.name
+    try:
+        check_output_folder(out)
+    except OutputError as exc:
+        raise StudyError("command line", "--out", exc.problem) from exc
+    show = not (args.quiet or args.json) and sys.stderr.isatty()
+    bar = tqdm(desc=study.name, unit="case", file=sys.stderr, disable=not show, smoothing=0.1)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    begin = time.perf_counter()
+    try:
+        output = run_study(
+            study, out, workers=args.workers, scheduler=args.scheduler, progress=progress
+        )
+    except KeyboardInterrupt:
+        forget_interrupt()
+        bar.close()
+        stored = len(list((Path(out) / CASES_FOLDER).glob("*.json")))
+        print(
+            f"vtm-pin: interrupted; {stored} finished cases are stored in {out}; run the same "
+            "command again to continue",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
+    finally:
+        bar.close()
+    if args.json:
+        print(json.dumps(output.summary, indent=2, allow_nan=False))
+    elif not args.quiet:
+        print(format_study(output, time.perf_counter() - begin))
+        print(f"wrote {out}/: {', '.join(output.files)}")
     return EXIT_OK
 
 
@@ -277,6 +388,8 @@ def _with_integrator_options(scenario: Scenario, args: argparse.Namespace) -> Sc
     settings = integrator_settings(scenario.integrator)
     spec = {"method": overrides.get("method", scenario.integrator.name), **overrides}
     spec.setdefault("max_steps", settings.get("max_steps"))
+    if spec["method"] == scenario.integrator.name:  # the same method keeps its output_dt
+        spec.setdefault("output_dt", settings.get("output_dt"))
     if "method" not in overrides:
         spec = {**settings, **overrides}
     spec = {key: value for key, value in spec.items() if value is not None}

@@ -62,6 +62,8 @@ def build_summary(
         "events": [_event_summary(result, i) for i in range(len(result.events))],
         "final": _final(result),
         "assumptions": list(scenario.robot.assumptions) + list(scenario.assumptions),
+        "payload": _payload(scenario),
+        "annex_b": _test_state(scenario),
         "energy": {
             "initial_total": float(energy.total[0]),
             "final_total": float(energy.total[-1]),
@@ -108,6 +110,30 @@ def build_summary(
             for name, other in compare.items()
         }
     return summary
+
+
+def _payload(scenario: Scenario) -> dict[str, Any] | None:
+    """The payload attached to the robot, or None."""
+    from .payload import payload_summary
+
+    payload = scenario.payload
+    return None if payload is None else payload_summary(payload, payload.frame)
+
+
+def _test_state(scenario: Scenario) -> dict[str, Any] | None:
+    """The Annex-B test state the initial state was computed from, or None."""
+    state = scenario.test_state
+    if state is None:
+        return None
+    return {
+        "joint": scenario.robot.joints[state.joint_index],
+        "speed": state.speed,
+        "reach": state.reach,
+        "max_reach": state.max_reach,
+        "extension": state.reach / state.max_reach,
+        "moves_tool_vertically": state.vertical,
+        "units": {"speed": "rad/s (m/s for prismatic joints)", "reach": "m", "max_reach": "m"},
+    }
 
 
 def _brake_event(event: BrakeEvent) -> dict[str, Any]:
@@ -300,7 +326,10 @@ def format_summary(summary: Mapping[str, Any]) -> str:
 
 
 def integrator_settings(integrator: Integrator) -> dict[str, Any]:
-    """``{"method": name, <its settings>}`` for summary.json (event tolerance left out)."""
+    """``{"method": name, <its settings>}`` for summary.json (event tolerance left out).
+
+    dop853's ``output_dt`` [s] is there when set.
+    """
     fields = {
         k: v
         for k, v in dataclasses.asdict(integrator).items()  # type: ignore[call-overload]
@@ -308,12 +337,16 @@ def integrator_settings(integrator: Integrator) -> dict[str, Any]:
     }
     if fields.get("max_step") == float("inf"):
         del fields["max_step"]
+    if "output_dt" in fields and fields["output_dt"] is None:  # dop853 at its steps
+        del fields["output_dt"]
     return {"method": integrator.name, **fields}
 
 
 def _describe(settings: Mapping[str, Any]) -> str:
     parts = [
-        f"{k} = {v:g}{' s' if k == 'dt' else ''}" for k, v in settings.items() if k != "method"
+        f"{k} = {v:g}{' s' if k in ('dt', 'output_dt') else ''}"
+        for k, v in settings.items()
+        if k != "method"
     ]
     return f"{settings['method']} {', '.join(parts)}"
 

@@ -12,12 +12,15 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from .annex_b import Conditions, TestState, compute_test_state, describe_conditions
 from .brakes import Brake
 from .exceptions import (
     BrakeError,
+    ConditionsError,
     ConstraintError,
     ConstraintNotMet,
     JointNotFound,
+    PayloadError,
     ProblemError,
     ScenarioError,
     StepLimitError,
@@ -29,6 +32,7 @@ from .holonomic import FrameConstraint
 from .inputs import check_schema, number, read_yaml
 from .integrators import DEFAULT_MAX_STEPS, DOP853, FIXED_STEP, INTEGRATORS, Integrator
 from .integrators.base import steps_text
+from .payload import Payload, attach_payload, describe_payload, inertia_matrix
 from .problem import LockEvent, Problem, check_transition
 from .results import SimulationResult
 from .robot import DRIVES_SCHEMA, Drive, Robot, load_robot
@@ -117,7 +121,7 @@ def _time(description: str, *, positive: bool = False) -> dict[str, Any]:
 SCHEMA: dict[str, Any] = {
     "type": "object",
     "additionalProperties": False,
-    "required": ["robot", "initial", "duration"],
+    "required": ["robot", "duration"],
     "properties": {
         "description": {"type": "string", "description": "Free text shown in the summary."},
         "robot": {
@@ -144,6 +148,69 @@ SCHEMA: dict[str, Any] = {
             },
         },
         "duration": _time("Simulated time [s], > 0 and at most 3600.", positive=True),
+        "payload": {
+            "type": "object",
+            "additionalProperties": False,
+            "required": ["mass"],
+            "description": "A rigid payload (gripper and part) attached to a frame. Default: none.",
+            "properties": {
+                "mass": number(0.0, 1.0e5, "Mass [kg], >= 0."),
+                "com": {
+                    **_VECTOR3_M,
+                    "description": "Centre of mass [m] in the frame. Default: [0, 0, 0].",
+                },
+                "inertia": {
+                    "type": "object",
+                    "additionalProperties": False,
+                    "description": "Rotational inertia about the centre of mass, frame axes "
+                    "[kg m^2]: ixx, iyy, izz, and ixy, ixz, iyz (default 0). Default: a point "
+                    "mass.",
+                    "properties": {
+                        k: number(-1.0e5, 1.0e5, f"{k} [kg m²].")
+                        for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
+                    },
+                    "required": ["ixx", "iyy", "izz"],
+                },
+                "frame": {
+                    "type": "string",
+                    "description": "Frame it is attached to. Default: the tool frame.",
+                },
+            },
+        },
+        "annex_b": {
+            "type": "object",
+            "additionalProperties": False,
+            "required": ["joint"],
+            "description": "ISO 10218-1 Annex-B test conditions: the initial state is computed "
+            "(only this joint moves; see the README). Replaces initial.v; initial.q is the "
+            "guess for the pose. Default: none.",
+            "properties": {
+                "joint": {"type": "string", "description": "Joint under test."},
+                "speed": number(
+                    0.0,
+                    1.0,
+                    "Fraction of the joint's maximum speed [-], (0, 1]. Default: 1.",
+                    exclusive_low=True,
+                ),
+                "max_speed": number(
+                    0.0,
+                    MAX_RATE,
+                    "Maximum speed [rad/s or m/s]. Default: the URDF velocity limit.",
+                    exclusive_low=True,
+                ),
+                "extension": number(
+                    0.0,
+                    1.0,
+                    "Fraction of the arm's maximum reach [-], (0, 1]. Default: 1.",
+                    exclusive_low=True,
+                ),
+                "direction": {
+                    "enum": ["down", "up", "positive", "negative"],
+                    "description": "Sign of the joint's rate: down moves the tool along "
+                    "gravity (positive when it moves the tool horizontally). Default: down.",
+                },
+            },
+        },
         "integrator": {
             "type": "object",
             "additionalProperties": False,
@@ -170,6 +237,12 @@ SCHEMA: dict[str, Any] = {
                     "(duration / dt) up front, dop853 stops when the steps between two events "
                     "pass it. Default: 1000000.",
                 },
+                "output_dt": _time(
+                    "dop853 output period [s], <= duration, at most max_steps samples: its dense "
+                    "output at the times k output_dt (k whole) instead of its steps. Default: "
+                    "none: the accepted steps.",
+                    positive=True,
+                ),
             },
         },
         "transition": {
@@ -339,6 +412,8 @@ class Scenario:
         tool_frame: Frame followed by the stopping report.
         assumptions: Stated assumptions, quoted by reports.
         constraint_keys: Key in the file of each frame constraint, by name (for messages).
+        payload: The payload attached to the robot (already in ``robot``'s model), if any.
+        test_state: The Annex-B test state the initial state was computed from, if any.
     """
 
     source: str
@@ -350,6 +425,8 @@ class Scenario:
     tool_frame: str = ""
     assumptions: tuple[str, ...] = ()
     constraint_keys: Mapping[str, str] = field(default_factory=dict)
+    payload: Payload | None = None
+    test_state: TestState | None = None
 
     @property
     def robot(self) -> Robot:
@@ -468,7 +545,11 @@ def _read_yaml(path: Path) -> Any:
 
 
 def build_scenario(
-    raw: Any, source: str = "", base_dir: Path | None = None, name: str = "scenario"
+    raw: Any,
+    source: str = "",
+    base_dir: Path | None = None,
+    name: str = "scenario",
+    loader: Callable[..., Robot] = load_robot,
 ) -> Scenario:
     """Validate a scenario given as a mapping (the parsed YAML) and resolve it.
 
@@ -477,6 +558,8 @@ def build_scenario(
         source: File name used in error messages.
         base_dir: Folder that relative robot paths are resolved against.
         name: Name used for outputs.
+        loader: Loads the robot, with :func:`vtm_pin.robot.load_robot`'s arguments (studies
+            pass a cached one; the robot it returns is never modified).
 
     Raises:
         ScenarioError: The mapping breaks the schema or names unknown robots or joints.
@@ -494,7 +577,7 @@ def build_scenario(
         for joint, d in raw.get("drives", {}).items()
     }
     try:
-        robot = load_robot(raw["robot"], drives=drives, base_dir=base_dir)
+        robot = loader(raw["robot"], drives=drives, base_dir=base_dir)
     except JointNotFound as exc:
         raise ScenarioError(
             source,
@@ -504,9 +587,19 @@ def build_scenario(
     except VtmError as exc:
         raise ScenarioError(source, "robot", str(exc)) from exc
 
-    initial = raw["initial"]
-    q0 = _joint_vector(robot, initial["q"], source, "initial.q")
-    v0 = _joint_vector(robot, initial.get("v", [0.0] * robot.nv), source, "initial.v")
+    tool_frame = raw.get("tool_frame", robot.tool_frame)
+    if not robot.model.existFrame(tool_frame):
+        frames = ", ".join(f.name for f in robot.model.frames)
+        raise ScenarioError(
+            source, "tool_frame", f"no frame '{excerpt(tool_frame)}'; frames: {frames}"
+        )
+    assumptions = list(raw.get("assumptions", ()))
+    payload = None
+    if "payload" in raw:
+        payload = _payload(raw["payload"], tool_frame, source)
+        robot = _attach(robot, payload, source)
+        assumptions.append(describe_payload(payload, payload.frame))
+    q0, v0, test_state = _initial_state(raw, robot, tool_frame, source, assumptions)
 
     integrator = build_integrator(raw.get("integrator", {}), duration, source)
 
@@ -537,19 +630,13 @@ def build_scenario(
             duration=duration,
             events=events,
             brakes=_brakes(raw.get("brakes", {}), source),
-            stop=_stop(robot, raw.get("stop"), source),
+            stop=_stop(robot, raw.get("stop"), source, assumptions),
             constraints=constraints,
             baumgarte=(float(stab.get("alpha", 10.0)), float(stab.get("beta", 10.0))),
         )
         check_transition(problem, transition)
     except ProblemError as exc:
         raise ScenarioError(source, exc.key, exc.problem) from exc
-    tool_frame = raw.get("tool_frame", robot.tool_frame)
-    if not robot.model.existFrame(tool_frame):
-        frames = ", ".join(f.name for f in robot.model.frames)
-        raise ScenarioError(
-            source, "tool_frame", f"no frame '{excerpt(tool_frame)}'; frames: {frames}"
-        )
 
     return Scenario(
         source=source,
@@ -559,22 +646,79 @@ def build_scenario(
         integrator=integrator,
         transition=transition,
         tool_frame=tool_frame,
-        assumptions=tuple(raw.get("assumptions", ())),
+        assumptions=tuple(assumptions),
         constraint_keys=names,
+        payload=payload,
+        test_state=test_state,
     )
+
+
+def _payload(raw: Mapping[str, Any], tool_frame: str, source: str) -> Payload:
+    """The payload of a scenario's ``payload`` mapping (attached to the tool frame by default)."""
+    try:
+        inertia = inertia_matrix(raw["inertia"]) if "inertia" in raw else None
+        return Payload(
+            mass=float(raw["mass"]),
+            com=tuple(float(x) for x in raw.get("com", (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
+            inertia=inertia,
+            frame=str(raw.get("frame", tool_frame)),
+        )
+    except PayloadError as exc:
+        raise ScenarioError(source, f"payload.{exc.key}", exc.problem) from exc
+
+
+def _attach(robot: Robot, payload: Payload, source: str) -> Robot:
+    try:
+        return attach_payload(robot, payload)
+    except PayloadError as exc:
+        raise ScenarioError(source, f"payload.{exc.key}", exc.problem) from exc
+
+
+def _initial_state(
+    raw: Mapping[str, Any], robot: Robot, tool_frame: str, source: str, assumptions: list[str]
+) -> tuple[np.ndarray, np.ndarray, TestState | None]:
+    """q0, v0 from ``initial``, or computed from ``annex_b`` (``initial.q`` as the guess)."""
+    initial = raw.get("initial")
+    spec = raw.get("annex_b")
+    if initial is None and spec is None:
+        raise ScenarioError(source, "initial", "is required (or annex_b, which computes it)")
+    if spec is None:
+        assert initial is not None
+        q0 = _joint_vector(robot, initial["q"], source, "initial.q")
+        v0 = _joint_vector(robot, initial.get("v", [0.0] * robot.nv), source, "initial.v")
+        return q0, v0, None
+    guess = (
+        _joint_vector(robot, initial["q"], source, "initial.q")
+        if initial is not None
+        else pin.neutral(robot.model)
+    )
+    try:
+        conditions = Conditions(
+            joint=str(spec["joint"]),
+            speed=float(spec.get("speed", 1.0)),
+            extension=float(spec.get("extension", 1.0)),
+            max_speed=None if "max_speed" not in spec else float(spec["max_speed"]),
+            direction=str(spec.get("direction", "down")),
+        )
+        state = compute_test_state(robot, tool_frame, conditions, guess)
+    except ConditionsError as exc:
+        raise ScenarioError(source, f"annex_b.{exc.key}", exc.problem) from exc
+    assumptions.extend(describe_conditions(conditions, state, tool_frame))
+    return state.q, state.v, state
 
 
 def build_integrator(spec: Mapping[str, Any], duration: float, source: str = "") -> Integrator:
     """The integrator a scenario's ``integrator`` mapping asks for (defaults: rk4, 1e-4 s).
 
     Args:
-        spec: The ``integrator`` mapping: method, dt or rtol / atol, max_steps.
+        spec: The ``integrator`` mapping: method, dt or rtol / atol / output_dt, max_steps.
         duration: Simulated time [s].
         source: File name used in messages.
 
     Raises:
         ScenarioError: A value out of range, a key that does not apply to the method, a step
-            longer than the run, or a fixed-step run of more than ``max_steps`` steps.
+            or output period longer than the run, or a fixed-step run of more than
+            ``max_steps`` steps (an output of more than ``max_steps`` samples).
     """
     check_schema(spec, SCHEMA["properties"]["integrator"], source, ScenarioError, "integrator")
     method = spec.get("method", "rk4")
@@ -585,7 +729,22 @@ def build_integrator(spec: Mapping[str, Any], duration: float, source: str = "")
                 source, "integrator.dt", f"{method} chooses its own steps: give rtol / atol instead"
             )
         rtol, atol = float(spec.get("rtol", 1e-8)), float(spec.get("atol", 1e-10))
-        return DOP853(rtol=rtol, atol=atol, max_steps=max_steps)
+        output_dt = float(spec["output_dt"]) if "output_dt" in spec else None  # [s]
+        samples = duration / (output_dt or duration)  # more than max_steps of them: a typo
+        if output_dt is not None and (output_dt > duration or samples > max_steps * (1 + 1e-9)):
+            raise ScenarioError(
+                source,
+                "integrator.output_dt",
+                f"{output_dt:g} s must be in (0, duration = {duration:g}] s, with duration / "
+                f"output_dt = {steps_text(samples)} samples at most max_steps = {max_steps}",
+            )
+        return DOP853(rtol=rtol, atol=atol, max_steps=max_steps, output_dt=output_dt)
+    if "output_dt" in spec:
+        raise ScenarioError(
+            source,
+            "integrator.output_dt",
+            f"applies to dop853 only: {method} is a fixed-step method and already samples every dt",
+        )
     wrong = sorted({"rtol", "atol"} & set(spec))
     if wrong:
         raise ScenarioError(
@@ -688,12 +847,19 @@ def _friction(spec: Mapping[str, Any], source: str, key: str) -> FrictionLaw:
     return Coulomb(sliding, static, ramp=ramp)
 
 
-def _stop(robot: Robot, raw: Any, source: str) -> Stop | None:
+def _stop(robot: Robot, raw: Any, source: str, assumptions: list[str]) -> Stop | None:
     if raw is None:
         return None
     limit = raw.get("torque_limit")
     if isinstance(limit, (int, float)):
         limit = [float(limit)] * robot.nv
+    if limit is None and raw.get("category", 0) == 1:
+        limit = _effort_limits(robot, source)
+        shown = ", ".join(f"{x:g}" for x in limit)
+        assumptions.append(
+            f"Category-1 drive torque limits default to the URDF effort limits [{shown}] N m "
+            "(joint side)."
+        )
     torque_limit = (
         None if limit is None else _joint_vector(robot, limit, source, "stop.torque_limit")
     )
@@ -710,6 +876,20 @@ def _stop(robot: Robot, raw: Any, source: str) -> Stop | None:
         )
     except BrakeError as exc:
         raise ScenarioError(source, "stop", str(exc)) from exc
+
+
+def _effort_limits(robot: Robot, source: str) -> list[float]:
+    """The URDF's effort limits [N m], the category-1 torque limits when none are given."""
+    effort = [float(x) for x in robot.model.effortLimit]
+    for joint, x in zip(robot.joints, effort, strict=True):
+        if not (math.isfinite(x) and x > 0.0):
+            raise ScenarioError(
+                source,
+                "stop.torque_limit",
+                f"the URDF gives joint '{joint}' no effort limit to default to: give "
+                "torque_limit [N m] for category 1",
+            )
+    return effort
 
 
 def run_scenario(

@@ -1,0 +1,273 @@
+"""Studies: study files, cases, running them (in process, on a pool, resumed), their outputs."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from vtm_pin.cli import main
+from vtm_pin.exceptions import StudyError
+from vtm_pin.study import NAMED_AXES, find_study, load_study, resolve_case
+from vtm_pin.study_runner import CASES_FOLDER, run_study
+
+#: Columns that depend on the machine, not on the physics.
+TIMING = ["wall_time"]
+
+
+def write_study(folder: Path, vary: dict, **extra: object) -> Path:
+    path = folder / "study.yaml"
+    path.write_text(
+        yaml.safe_dump({"scenario": "ur10_annex_b", "vary": vary, **extra}, sort_keys=False)
+    )
+    return path
+
+
+#: A small grid: 4 cases of the UR10 Annex-B base, shortened to 0.9 s.
+SMALL = {
+    "joint": ["shoulder_lift_joint", "elbow_joint"],
+    "speed": [0.5, 1.0],
+    "duration": [0.9],
+}
+
+
+def physics(table: pd.DataFrame) -> pd.DataFrame:
+    return table.drop(columns=TIMING).sort_values("case").reset_index(drop=True)
+
+
+# -- study files and cases ------------------------------------------------------------------
+
+
+def test_grid_is_the_full_product_in_file_order(tmp_path: Path) -> None:
+    study = load_study(write_study(tmp_path, {"joint": ["a", "b"], "speed": [0.1, 0.2, 0.3]}))
+    cases = study.cases()
+    assert study.mode == "grid"
+    assert [tuple(c.values.values()) for c in cases] == [
+        (j, s) for j in ("a", "b") for s in (0.1, 0.2, 0.3)
+    ]
+    assert len({c.id for c in cases}) == 6
+    # the id is derived from the values only: the same values give the same id in another file
+    again = load_study(write_study(tmp_path, {"joint": ["b"], "speed": [0.2]}))
+    assert again.cases()[0].id == cases[4].id
+
+
+def test_sampled_study_draws_ranges_and_lists(tmp_path: Path) -> None:
+    vary = {"speed": {"min": 0.3, "max": 1.0}, "joint": ["a", "b", "c"]}
+    study = load_study(write_study(tmp_path, vary, samples=64, seed=3))
+    cases = study.cases()
+    speeds = np.array([c.values["speed"] for c in cases])
+    assert len(cases) == 64
+    assert np.all((speeds >= 0.3) & (speeds <= 1.0))
+    # quasi-random: 64 Halton points fill [0.3, 1] evenly, each eighth of it gets 8 +- 2
+    counts, _ = np.histogram(speeds, bins=8, range=(0.3, 1.0))
+    assert counts.min() >= 6 and counts.max() <= 10
+    assert {c.values["joint"] for c in cases} == {"a", "b", "c"}
+    assert [c.id for c in load_study(write_study(tmp_path, vary, samples=64, seed=3)).cases()] == [
+        c.id for c in cases
+    ]
+    other = load_study(write_study(tmp_path, vary, samples=64, seed=4)).cases()
+    assert [c.values["speed"] for c in other] != list(speeds)
+
+
+@pytest.mark.parametrize(
+    ("vary", "extra", "key", "phrase"),
+    [
+        ({"spede": [1.0]}, {}, "vary.spede", "not a named axis"),
+        ({"speed": {"min": 0.1, "max": 0.2}}, {}, "vary.speed", "needs samples"),
+        ({"speed": {"min": 0.3, "max": 0.2}}, {"samples": 4}, "vary.speed", "min must be <= max"),
+        ({"failed_brake": ["wrist_9"]}, {}, "vary.failed_brake", "has no brake"),
+        ({"brakes.wrist_9.delay": [0.1]}, {}, "vary.brakes.wrist_9.delay", "no brake on"),
+        ({"speed": []}, {}, "vary.speed", ""),
+        ({}, {}, "vary", ""),
+    ],
+)
+def test_bad_study_files_are_refused_naming_the_key(
+    tmp_path: Path, vary: dict, extra: dict, key: str, phrase: str
+) -> None:
+    with pytest.raises(StudyError) as info:
+        load_study(write_study(tmp_path, vary, **extra))
+    assert info.value.key == key
+    assert phrase in info.value.problem
+
+
+def test_missing_base_scenario_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "s.yaml"
+    path.write_text("scenario: no_such.yaml\nvary: {speed: [1.0]}\n")
+    with pytest.raises(StudyError) as info:
+        load_study(path)
+    assert info.value.key == "scenario"
+
+
+def test_resolve_sets_named_axes_and_key_paths_without_touching_the_base(tmp_path: Path) -> None:
+    study = load_study(write_study(tmp_path, {"speed": [1.0]}))
+    base = json.loads(json.dumps(study.base))
+    values = {
+        "joint": "elbow_joint",
+        "speed": 0.5,
+        "extension": 0.66,
+        "payload": 2.5,
+        "category": 1,
+        "brake_scale": 0.5,
+        "failed_brake": "elbow_joint",
+        "brakes.*.delay": 0.1,
+        "stop.t": 0.2,
+    }
+    raw = resolve_case(study.base, values)
+    assert raw["annex_b"] == {
+        **base["annex_b"],
+        "joint": "elbow_joint",
+        "speed": 0.5,
+        "extension": 0.66,
+    }
+    assert raw["payload"]["mass"] == 2.5 and raw["payload"]["com"] == base["payload"]["com"]
+    assert raw["stop"]["category"] == 1 and raw["stop"]["t"] == 0.2
+    assert "elbow_joint" not in raw["brakes"]
+    lift, base_lift = raw["brakes"]["shoulder_lift_joint"], base["brakes"]["shoulder_lift_joint"]
+    assert lift["sliding_torque"] == 0.5 * base_lift["sliding_torque"]
+    assert lift["static_torque"] == 0.5 * base_lift["static_torque"]
+    assert {b["delay"] for b in raw["brakes"].values()} == {0.1}
+    assert json.loads(json.dumps(study.base)) == base  # the base is not modified
+    assert set(NAMED_AXES) >= {"joint", "speed", "payload", "extension", "category"}
+
+
+def test_shipped_studies_load() -> None:
+    grid = load_study(find_study("ur10_annex_b"))
+    assert grid.mode == "grid" and len(grid.cases()) == 162
+    sampled = load_study(find_study("ur10_brake_wear"))
+    assert sampled.mode == "sampled" and len(sampled.cases()) == 200
+    with pytest.raises(StudyError, match="ur10_annex_b"):
+        find_study("no_such_study")
+
+
+# -- running ---------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, pd.DataFrame]:
+    folder = tmp_path_factory.mktemp("study")
+    vary = {**SMALL, "joint": [*SMALL["joint"], "no_such_joint"]}
+    out = folder / "out"
+    output = run_study(load_study(write_study(folder, vary)), out, workers=1)
+    return out, output.table
+
+
+def test_a_study_writes_its_table_summary_and_report(small_run: tuple[Path, pd.DataFrame]) -> None:
+    out, table = small_run
+    assert {"results.parquet", "results.csv", "summary.json", "report.html"} <= {
+        p.name for p in out.iterdir()
+    }
+    assert len(table) == 6 and table["case"].is_unique
+    assert list(table.columns[:5]) == ["case", "joint", "speed", "duration", "status"]
+    pd.testing.assert_frame_equal(pd.read_parquet(out / "results.parquet"), table)
+    csv = pd.read_csv(out / "results.csv")
+    assert list(csv.columns) == list(table.columns) and len(csv) == len(table)
+    ok = table[table["status"] == "ok"]
+    assert len(ok) == 4
+    # a faster start stops later and farther, for both joints
+    for _, rows in ok.groupby("joint"):
+        rows = rows.sort_values("speed")
+        assert rows["stop_angle"].is_monotonic_increasing
+        assert rows["stop_time"].is_monotonic_increasing
+    assert np.all(ok["tcp_path"] >= ok["tcp_distance"] - 1e-12)  # a path is never shorter
+    assert np.allclose(
+        ok["test_speed"], ok["speed"] * np.where(ok["joint"] == "elbow_joint", 3.15, 2.16)
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"] == {"cases": 6, "ok": 4, "not_stopped": 0, "error": 2}
+    assert summary["study"]["mode"] == "grid" and "pin" in summary["versions"]
+    assert any("Drive figures assumed" in line for line in summary["assumptions"])
+
+
+def test_a_failed_case_is_recorded_with_its_message(small_run: tuple[Path, pd.DataFrame]) -> None:
+    _, table = small_run
+    failed = table[table["joint"] == "no_such_joint"]
+    assert len(failed) == 2
+    for status in failed["status"]:
+        assert status.startswith("error: ") and "annex_b.joint" in status and "\n" not in status
+    assert failed["stop_time"].isna().all()
+
+
+def test_a_finished_study_run_again_computes_nothing(
+    small_run: tuple[Path, pd.DataFrame], tmp_path: Path
+) -> None:
+    out, table = small_run
+    study = load_study(out.parent / "study.yaml")
+    again = run_study(study, out, workers=1)
+    assert again.computed == 0
+    pd.testing.assert_frame_equal(again.table, table)
+
+
+def test_a_changed_study_is_refused(small_run: tuple[Path, pd.DataFrame]) -> None:
+    out, _ = small_run
+    (out.parent / "changed").mkdir()
+    changed = write_study(out.parent / "changed", {**SMALL, "speed": [0.4]})
+    with pytest.raises(StudyError, match=r"different study.*delete that folder"):
+        run_study(load_study(changed), out, workers=1)
+
+
+def test_a_process_pool_gives_the_same_table(
+    small_run: tuple[Path, pd.DataFrame], tmp_path: Path
+) -> None:
+    _, table = small_run
+    vary = {**SMALL, "joint": [*SMALL["joint"], "no_such_joint"]}
+    pooled = run_study(load_study(write_study(tmp_path, vary)), tmp_path / "out", workers=2)
+    assert pooled.computed == 6
+    pd.testing.assert_frame_equal(physics(pooled.table), physics(table))
+
+
+def test_resume_after_sigkill_equals_a_clean_run(
+    small_run: tuple[Path, pd.DataFrame], tmp_path: Path
+) -> None:
+    _, table = small_run
+    vary = {**SMALL, "joint": [*SMALL["joint"], "no_such_joint"]}
+    path = write_study(tmp_path, vary)
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "vtm_pin", "study", str(path), "--out", str(out)]
+    process = subprocess.Popen([*command, "--workers", "1", "--quiet"])
+    cases = out / CASES_FOLDER
+    deadline = time.monotonic() + 120.0
+    while len(list(cases.glob("*.json"))) < 2 and time.monotonic() < deadline:
+        assert process.poll() is None, "the study ended before it could be killed"
+        time.sleep(0.02)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    stored = len(list(cases.glob("*.json")))
+    assert 2 <= stored < 6
+    assert not (out / "results.parquet").exists()  # nothing but finished cases was written
+    rerun = subprocess.run([*command, "--workers", "1", "--json"], capture_output=True, text=True)
+    assert rerun.returncode == 0, rerun.stderr
+    resumed = pd.read_parquet(out / "results.parquet")
+    assert resumed["case"].is_unique and len(resumed) == 6
+    pd.testing.assert_frame_equal(physics(resumed), physics(table))
+    assert json.loads(rerun.stdout)["counts"]["cases"] == 6
+
+
+# -- the command line ------------------------------------------------------------------------
+
+
+def test_study_command_prints_counts_and_refuses_bad_input(
+    small_run: tuple[Path, pd.DataFrame], capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, _ = small_run
+    assert main(["study", str(out.parent / "study.yaml"), "--out", str(out), "--workers", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert "6 cases: 4 ok, 0 not stopped, 2 failed" in printed and "0 computed now" in printed
+    assert main(["study", "no_such_study", "--out", str(out)]) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "not the name of a shipped study" in error
+    assert main(["study", "ur10_annex_b", "--workers", "0"]) == 2
+
+
+def test_run_no_plots_writes_no_figures(tmp_path: Path) -> None:
+    assert main(["run", "pendulum3r", "--out", str(tmp_path), "--no-plots", "--quiet"]) == 0
+    assert not list(tmp_path.glob("*.png"))
+    assert (tmp_path / "summary.json").is_file()

@@ -1,0 +1,586 @@
+"""Running a study: its cases on all cores or on a Dask cluster, stored as they finish.
+
+Every case is a full :func:`vtm_pin.pipeline.run` of the case's scenario. A case that fails
+is recorded with its one-line message and the study goes on. Each finished case is written at
+once, atomically, to ``DIR/cases/<id>.json``; ``DIR/study.json`` holds the study's
+fingerprint. Run again after an interruption (Ctrl-C, or the process killed outright), the
+same command computes only the cases missing there; a changed study is refused rather than
+mixed with old results. The results table, its summary and the report are written once, by
+the driver process only, when every case is done (:func:`run_study`).
+
+Executors: one worker runs the cases in the driver process; more use a process pool
+(``forkserver`` where available: the workers fork from a server that has imported vtm_pin and
+Pinocchio once), with BLAS / OpenMP threads pinned to 1 and Ctrl-C left to the driver. With a
+scheduler address the cases go to an existing ``dask.distributed`` cluster (the ``cluster``
+extra). A worker loads each robot model once (:func:`_cached_robot`), not once per case.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+import os
+import platform
+import shutil
+import signal
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from .exceptions import OutputError, StudyError, VtmError
+from .study import Case, Study
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from .pipeline import RunOutput
+    from .robot import Drive, Robot
+
+#: Files of a study's output folder.
+CASES_FOLDER, STATE_FILE = "cases", "study.json"
+#: Environment variables that pin a worker's BLAS / OpenMP pools to one thread.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+#: Metrics of a case, in table order, with their units.
+METRICS = {
+    "stop_time": "s",
+    "stop_angle": "rad",
+    "tcp_distance": "m",
+    "tcp_path": "m",
+    "peak_tcp_speed": "m/s",
+    "test_speed": "rad/s",
+    "test_reach": "m",
+}
+#: What each column of the results table means (summary.json and report.html quote these).
+DEFINITIONS = {
+    "case": "Stable id of the case: a hash of its axis values (and of its index in sampled "
+    "studies).",
+    "status": "ok: every joint came to rest; not_stopped: some joint was still moving at the "
+    "end of the run (lengthen duration); error: <message>: the case failed.",
+    "stop_time": "T [s], the overall stopping time of ISO 13855 (S = K T + C): from the stop "
+    "signal until every joint's speed stays below stop.rest_speed.",
+    "stop_angle": "Stopping distance of the tested joint [rad], |q(end) - q(signal)|; the joint "
+    "with the largest travel when the case has no annex_b joint.",
+    "tcp_distance": "S_s [m], the stopping distance of ISO/TS 15066 speed and separation "
+    "monitoring: straight-line distance of the tool frame from the signal to rest.",
+    "tcp_path": "Length of the tool frame's path from the signal to rest [m] (at least "
+    "tcp_distance).",
+    "peak_tcp_speed": "Largest tool-frame speed after the signal [m/s].",
+    "test_speed": "The tested joint's rate at the signal [rad/s] (annex_b cases).",
+    "test_reach": "Horizontal reach of the tool frame at the signal [m] (annex_b cases).",
+    "stop_time.<joint>": "That joint's stopping time [s].",
+    "stop_angle.<joint>": "That joint's travel after the signal, |q(end) - q(signal)| [rad].",
+    "wall_time": "Time this case took to build, simulate and report [s].",
+}
+
+
+@dataclass(frozen=True)
+class CaseTask:
+    """What a worker needs to run one case (picklable: sent to processes and clusters).
+
+    Attributes:
+        base: The base scenario, parsed.
+        base_dir: Folder the base scenario's relative paths are resolved against.
+        source: The base scenario file, for messages.
+        name: The base scenario's name.
+        case: The case.
+    """
+
+    base: Mapping[str, Any]
+    base_dir: str
+    source: str
+    name: str
+    case: Case
+
+
+@dataclass(frozen=True)
+class StudyOutput:
+    """What :func:`run_study` produced.
+
+    Attributes:
+        study: The study.
+        table: The results table, one row per case in study order.
+        summary: The JSON-ready summary written to ``summary.json``.
+        files: Names of the files written into the output folder, sorted.
+        computed: Cases computed by this call (the others were stored by an earlier one).
+    """
+
+    study: Study
+    table: pd.DataFrame
+    summary: Mapping[str, Any]
+    files: tuple[str, ...]
+    computed: int
+
+
+_ROBOTS: dict[tuple[Any, ...], Robot] = {}
+
+
+def _cached_robot(
+    spec: str | Path, drives: Mapping[str, Drive] | None = None, base_dir: Path | None = None
+) -> Robot:
+    """:func:`vtm_pin.robot.load_robot`, once per robot and drives in this process.
+
+    The model is shared by the cases that use it; nothing in a run modifies it (a payload is
+    attached to a copy).
+    """
+    from .robot import load_robot
+
+    key = (str(spec), tuple(sorted((drives or {}).items())), str(base_dir))
+    robot = _ROBOTS.get(key)
+    if robot is None:
+        robot = _ROBOTS[key] = load_robot(spec, drives=drives, base_dir=base_dir)
+    return robot
+
+
+def run_case(task: CaseTask) -> dict[str, Any]:
+    """Run one case; returns its record (JSON-ready). Never raises for a failing case.
+
+    The record holds the case id, index and values, ``status``, the metrics of
+    :data:`METRICS` and per joint (None where undefined), the scenario's assumptions, and the
+    timing split: ``build`` (scenario and model), ``simulate``, ``report`` [s].
+    """
+    from .pipeline import run
+    from .scenario import build_scenario
+    from .study import resolve_case
+
+    case = task.case
+    record: dict[str, Any] = {"case": case.id, "index": case.index, "values": dict(case.values)}
+    start = time.perf_counter()
+    try:
+        raw = resolve_case(task.base, case.values)
+        source = f"{task.source} (case {case.id})"
+        scenario = build_scenario(
+            raw, source=source, base_dir=Path(task.base_dir), name=task.name, loader=_cached_robot
+        )
+        built = time.perf_counter()
+        output = run(scenario)
+        status, metrics = case_metrics(output)
+        simulated = sum(r.wall_time for r in output.results.values())
+        record.update(status=status, metrics=metrics)
+        record["assumptions"] = list(output.summary.get("assumptions", []))
+        record["timing"] = {
+            "build": built - start,
+            "simulate": simulated,
+            "report": time.perf_counter() - built - simulated,
+        }
+    except VtmError as exc:
+        record.update(status=f"error: {_one_line(str(exc))}", metrics={})
+    except Exception as exc:  # a bug: recorded like a failure, so the study goes on
+        message = f"internal error ({type(exc).__name__}: {exc})"
+        record.update(status=f"error: {_one_line(message)}", metrics={})
+    record["wall_time"] = time.perf_counter() - start
+    return record
+
+
+def case_metrics(output: RunOutput) -> tuple[str, dict[str, float | None]]:
+    """A run's status (``ok`` / ``not_stopped``) and metrics (see :data:`DEFINITIONS`).
+
+    Raises:
+        StudyError: The scenario has no stop, so there is nothing to measure.
+    """
+    scenario = output.scenario
+    if not output.stopping:
+        raise StudyError(scenario.source, "stop", "a study case needs a stop to measure")
+    report = output.stopping[output.rule]
+    joints = [j.joint for j in report.joints]
+    angles = [abs(j.stop_angle) for j in report.joints]
+    state = scenario.test_state
+    tested = (
+        state.joint_index if state is not None else max(range(len(angles)), key=angles.__getitem__)
+    )
+    metrics: dict[str, float | None] = {
+        "stop_time": report.all_stopped_time,
+        "stop_angle": angles[tested],
+        "tcp_distance": report.tcp_distance,
+        "tcp_path": report.tcp_path_length,
+        "peak_tcp_speed": report.tcp_peak_speed,
+        "test_speed": abs(state.speed) if state is not None else None,
+        "test_reach": state.reach if state is not None else None,
+    }
+    for name, joint in zip(joints, report.joints, strict=True):
+        metrics[f"stop_time.{name}"] = joint.stop_time
+    for name, angle in zip(joints, angles, strict=True):
+        metrics[f"stop_angle.{name}"] = angle
+    clean = {k: (v if v is not None and math.isfinite(v) else None) for k, v in metrics.items()}
+    return ("ok" if not report.moving else "not_stopped"), clean
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+@dataclass
+class CaseStore:
+    """The records of a study's finished cases in ``DIR/cases``, one JSON file per case.
+
+    Attributes:
+        folder: The study's output folder.
+        study: The study.
+        records: Case id -> record, of the cases stored so far.
+    """
+
+    folder: Path
+    study: Study
+    records: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    @property
+    def cases_folder(self) -> Path:
+        """Where the case records are."""
+        return self.folder / CASES_FOLDER
+
+    def open(self) -> None:
+        """Create the folder, or reopen it: refuse another study's results, load the records.
+
+        Raises:
+            StudyError: The folder holds the results of another study, or of this study
+                before its file or its base scenario changed.
+            OutputError: The folder cannot be created or written.
+        """
+        state_path = self.folder / STATE_FILE
+        try:
+            if state_path.is_file():
+                state = json.loads(state_path.read_text())
+                if state.get("fingerprint") != self.study.fingerprint:
+                    raise StudyError(
+                        self.study.source,
+                        "",
+                        f"'{self.folder}' holds results of a different study (this study file "
+                        "or its base scenario changed since they were computed); to start "
+                        "over, delete that folder or choose another --out",
+                    )
+            self.cases_folder.mkdir(parents=True, exist_ok=True)
+            if not state_path.is_file():
+                state = {"study": self.study.source, "fingerprint": self.study.fingerprint}
+                _write_atomic(state_path, json.dumps(state, indent=2) + "\n")
+            wanted = {case.id for case in self.study.cases()}
+            for path in self.cases_folder.glob("*.json"):
+                if path.stem in wanted:
+                    self.records[path.stem] = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise OutputError(str(self.folder), f"cannot use '{self.folder}' ({reason})") from exc
+
+    def save(self, record: dict[str, Any]) -> None:
+        """Store one finished case, atomically (a killed process leaves no partial file)."""
+        text = json.dumps(record, indent=1, allow_nan=False) + "\n"
+        try:
+            _write_atomic(self.cases_folder / f"{record['case']}.json", text)
+        except OSError as exc:
+            raise OutputError(str(self.folder), f"cannot write a case ({exc.strerror})") from exc
+        self.records[record["case"]] = record
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename.
+
+    A killed process leaves the old file or the new one, never a part. There is no fsync:
+    the page cache outlives the process, and a case lost to a power cut is run again.
+    """
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as file:
+            file.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def default_workers() -> int:
+    """The number of cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def run_study(
+    study: Study,
+    out: str | Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> StudyOutput:
+    """Run the cases of ``study`` not yet stored in ``out``, then write its results there.
+
+    Args:
+        study: The study.
+        out: Output folder; created if missing, reused (resumed) if it holds this study.
+        workers: Processes on this machine; all cores by default. Ignored with a scheduler.
+        scheduler: Address of a Dask scheduler (``tcp://host:port``) to send the cases to.
+        progress: Called with (cases done, cases in all) after each case, and once at the
+            start with the cases already stored.
+
+    Returns:
+        The table, summary and files written.
+
+    Raises:
+        StudyError: ``out`` holds another study's results, or the scheduler cannot be used.
+        OutputError: ``out`` cannot be written.
+        KeyboardInterrupt: Interrupted; the cases finished so far are stored.
+    """
+    out = Path(out)
+    store = CaseStore(out, study)
+    store.open()
+    cases = study.cases()
+    todo = [case for case in cases if case.id not in store.records]
+    if progress is not None:
+        progress(len(cases) - len(todo), len(cases))
+    base_dir = str(study.scenario.parent)
+    tasks = [
+        CaseTask(study.base, base_dir, str(study.scenario), study.scenario.stem, case)
+        for case in todo
+    ]
+    for record in _execute(tasks, workers or default_workers(), scheduler):
+        begin = time.perf_counter()
+        store.save(record)
+        record.setdefault("timing", {})["write"] = time.perf_counter() - begin
+        if progress is not None:
+            progress(len(store.records), len(cases))
+    records = [store.records[case.id] for case in cases]
+    executor = f"dask {scheduler}" if scheduler else f"{workers or default_workers()} workers"
+    return _finish(study, out, records, executor, len(tasks))
+
+
+def _execute(tasks: Sequence[CaseTask], workers: int, scheduler: str | None) -> Iterator[dict]:
+    """Run the tasks; yields each record as soon as its case is done (in any order)."""
+    if not tasks:
+        return iter(())
+    if scheduler:
+        return _on_dask(tasks, scheduler)
+    if workers <= 1 or len(tasks) == 1:
+        return (run_case(task) for task in tasks)
+    return _on_pool(tasks, min(workers, len(tasks)))
+
+
+def _on_pool(tasks: Sequence[CaseTask], workers: int) -> Iterator[dict]:
+    methods = multiprocessing.get_all_start_methods()
+    context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+    if "forkserver" in methods:
+        context.set_forkserver_preload(["vtm_pin.study_runner", "vtm_pin.pipeline"])
+    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
+    os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))  # inherited by the workers
+    try:
+        executor = ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker)
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+    return _drain(executor, tasks, workers)
+
+
+def _drain(
+    executor: ProcessPoolExecutor, tasks: Sequence[CaseTask], workers: int
+) -> Iterator[dict]:
+    """Keep the pool fed with a few tasks per worker; yield records as they complete."""
+    pending: set[Future[dict]] = set()
+    queue = iter(tasks)
+    try:
+        for task in queue:
+            pending.add(executor.submit(run_case, task))
+            if len(pending) >= 4 * workers:
+                break
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                yield future.result()
+                more = next(queue, None)
+                if more is not None:
+                    pending.add(executor.submit(run_case, more))
+    finally:
+        executor.shutdown(wait=False, cancel_futures=True)
+
+
+def _init_worker() -> None:
+    """A pool worker: Ctrl-C is the driver's to handle (the worker finishes its case)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _on_dask(tasks: Sequence[CaseTask], scheduler: str) -> Iterator[dict]:
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError as exc:
+        raise StudyError(
+            "command line",
+            "--scheduler",
+            "needs dask.distributed: pip install 'vtm_pin[cluster]'",
+        ) from exc
+    try:
+        client = Client(scheduler, timeout=30, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise StudyError(
+            "command line", "--scheduler", f"cannot reach the Dask scheduler {scheduler} ({exc})"
+        ) from exc
+    try:
+        futures = client.map(run_case, list(tasks), pure=False)
+        for future in as_completed(futures, loop=client.loop):
+            yield future.result()
+    finally:
+        client.close()
+
+
+def _finish(
+    study: Study, out: Path, records: list[dict[str, Any]], executor: str, computed: int
+) -> StudyOutput:
+    """Build the table and summary, and write them with the report into ``out``."""
+    from .study_report import write_study_report
+
+    table = results_table(study, records)
+    summary = build_study_summary(study, records, executor)
+    staging: Path | None = None
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=out))
+        table.to_parquet(staging / "results.parquet", index=False)
+        table.to_csv(staging / "results.csv", index=False)
+        (staging / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+        write_study_report(staging, summary, table)
+        files = sorted(item.name for item in staging.iterdir())
+        for name in files:
+            os.replace(staging / name, out / name)
+    except OSError as exc:
+        raise OutputError(str(out), f"cannot write '{out}' ({exc.strerror or exc})") from exc
+    finally:
+        if staging is not None:
+            shutil.rmtree(staging, ignore_errors=True)
+    return StudyOutput(study, table, summary, tuple(files), computed)
+
+
+def results_table(study: Study, records: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
+    """The results table: one row per case, in study order (columns: :data:`DEFINITIONS`)."""
+    import pandas as pd
+
+    joints: dict[str, None] = {}
+    for record in records:
+        joints.update(dict.fromkeys(k.split(".", 1)[1] for k in record["metrics"] if "." in k))
+    columns = [
+        *METRICS,
+        *(f"stop_time.{j}" for j in joints),
+        *(f"stop_angle.{j}" for j in joints),
+    ]
+    rows = []
+    for record in records:
+        values = {k: ("none" if v is None else v) for k, v in record["values"].items()}
+        metrics = record["metrics"]
+        rows.append(
+            {
+                "case": record["case"],
+                **values,
+                "status": record["status"],
+                **{c: _float(metrics.get(c)) for c in columns},
+                "wall_time": record["wall_time"],
+            }
+        )
+    table = pd.DataFrame(rows, columns=["case", *study.axes, "status", *columns, "wall_time"])
+    for name in study.axes:  # one type per column, as parquet needs
+        kinds = {type(v) for v in table[name]}
+        if len(kinds) > 1 and not kinds <= {int, float}:
+            table[name] = table[name].astype(str)
+    return table
+
+
+def _float(value: Any) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def build_study_summary(
+    study: Study, records: Sequence[Mapping[str, Any]], executor: str
+) -> dict[str, Any]:
+    """The JSON-ready ``summary.json`` of a study (keys documented in the README)."""
+    statuses = [str(r["status"]) for r in records]
+    counts = {
+        "cases": len(records),
+        "ok": statuses.count("ok"),
+        "not_stopped": statuses.count("not_stopped"),
+        "error": sum(s.startswith("error") for s in statuses),
+    }
+    timing = [r["timing"] for r in records if "timing" in r]
+    split = {
+        part: statistics.median(t.get(part, 0.0) for t in timing) if timing else None
+        for part in ("build", "simulate", "report", "write")
+    }
+    return {
+        "study": {
+            "name": study.name,
+            "file": study.source,
+            "description": study.description,
+            "scenario": str(study.scenario),
+            "robot": str(study.base.get("robot", "")),
+            "tool_frame": str(study.base.get("tool_frame", "")),
+            "mode": study.mode,
+            "samples": study.samples,
+            "seed": study.seed if study.samples is not None else None,
+            "axes": study.describe_axes(),
+            "fingerprint": study.fingerprint,
+        },
+        "counts": counts,
+        "executor": executor,
+        "versions": _versions(),
+        "assumptions": _common_assumptions(records),
+        "axes": {name: _axis_text(name) for name in study.axes},
+        "definitions": DEFINITIONS,
+        "units": {**METRICS, "wall_time": "s"},
+        "timing_median": split,
+        "wall_time_total": sum(float(r["wall_time"]) for r in records),
+    }
+
+
+def _axis_text(name: str) -> str:
+    from .study import NAMED_AXES
+
+    if name in NAMED_AXES:
+        return NAMED_AXES[name][1]
+    return f"scenario key {name} (units as in the scenario key table)"
+
+
+def _common_assumptions(records: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The assumptions stated by every finished case, then a note on the per-case ones."""
+    lists = [r["assumptions"] for r in records if "assumptions" in r]
+    if not lists:
+        return []
+    common = [line for line in lists[0] if all(line in other for other in lists[1:])]
+    varying = {line for other in lists for line in other} - set(common)
+    if varying:
+        common.append(
+            f"{len(varying)} further statements differ between cases (the payload and the "
+            "Annex-B speed and pose of each); each case's own are in cases/<case>.json."
+        )
+    return common
+
+
+def _versions() -> dict[str, str]:
+    names = ("vtm_pin", "pin", "numpy", "scipy", "pandas", "pyarrow", "distributed")
+    found = {"python": platform.python_version(), "platform": sys.platform}
+    for name in names:
+        try:
+            found[name] = version(name)
+        except PackageNotFoundError:
+            continue
+    return found
+
+
+def format_study(output: StudyOutput, elapsed: float) -> str:
+    """A few lines on a finished study: counts, failures and time (for the command line)."""
+    counts = output.summary["counts"]
+    stored = counts["cases"] - output.computed
+    lines = [
+        f"study {output.study.name}: {counts['cases']} cases: {counts['ok']} ok, "
+        f"{counts['not_stopped']} not stopped, {counts['error']} failed "
+        f"({output.computed} computed now, {stored} stored before; {output.summary['executor']}; "
+        f"{elapsed:.1f} s)"
+    ]
+    failed = output.table[output.table["status"] != "ok"]
+    for _, row in failed.head(5).iterrows():
+        lines.append(f"  case {row['case']}: {row['status']}")
+    if len(failed) > 5:
+        lines.append(f"  ... and {len(failed) - 5} more in results.csv")
+    return "\n".join(lines)
