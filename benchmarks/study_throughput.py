@@ -2,8 +2,9 @@
 
 Runs a shipped study (``ur10_annex_b``, 162 cases, by default) with ``vtm_pin.study_runner``
 into fresh folders, ``--repeat`` times per worker count, and prints the median wall time of the
-whole study (cases and the final table, graphs and report), the cases per second, the speed-up
-of 2 workers over 1, and the median per-case split into model build (scenario, payload and
+whole study (cases and the final table, graphs and report) and of its two phases (running the
+cases; writing the outputs), the cases per second of each, the speed-ups of 2 workers over 1,
+and the median per-case split into model build (scenario, payload and
 Annex-B pose), simulation, report (energies, stopping report, summary) and writing the case's
 record. Set ``OMP_NUM_THREADS=1`` when timing; the workers pin their own threads.
 
@@ -34,25 +35,30 @@ def main() -> None:
     cases = len(study.cases())
     print(f"study {study.name}: {cases} cases; median of {args.repeat} runs per worker count")
     print(
-        f"{'workers':>7} {'wall [s]':>9} {'cases/s':>8} {'speed-up':>8} "
+        f"{'workers':>7} {'whole [s]':>9} {'cases/s':>8} {'speed-up':>8} {'cases [s]':>9} "
+        f"{'cases/s':>8} {'speed-up':>8} {'outputs [s]':>11} "
         + " ".join(f"{p + ' [ms]':>13}" for p in PARTS)
         + f" {'outside sim':>11}"
     )
-    base: float | None = None
+    base: tuple[float, float] | None = None
     for workers in args.workers:
-        walls, splits = [], []
+        walls, phases, splits = [], [], []
         for _ in range(args.repeat):
             with tempfile.TemporaryDirectory() as folder:
                 begin = time.perf_counter()
                 output = run_study(study, Path(folder) / "out", workers=workers)
                 walls.append(time.perf_counter() - begin)
+                phases.append(output.phases)
                 splits.append(output.summary["timing_median"])
         wall = statistics.median(walls)
-        base = base or wall
+        running = statistics.median(p["cases"] for p in phases)
+        writing = statistics.median(p["outputs"] for p in phases)
+        base = base or (wall, running)
         split = {p: statistics.median(s[p] for s in splits) for p in PARTS}
         outside = 1.0 - split["simulate"] / sum(split.values())
         print(
-            f"{workers:>7} {wall:>9.2f} {cases / wall:>8.1f} {base / wall:>8.2f} "
+            f"{workers:>7} {wall:>9.2f} {cases / wall:>8.1f} {base[0] / wall:>8.2f} "
+            f"{running:>9.2f} {cases / running:>8.1f} {base[1] / running:>8.2f} {writing:>11.2f} "
             + " ".join(f"{1e3 * split[p]:>13.2f}" for p in PARTS)
             + f" {100 * outside:>10.1f}%"
         )

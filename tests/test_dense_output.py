@@ -166,9 +166,14 @@ def test_scenario_samples_are_on_the_grid_or_at_events(runs):
     events = {0.0, 1.0, *(e.t for e in result.events), *(e.t for e in result.brake_events)}
     off_grid = result.t[~on_grid(result.t, dt)]
     assert set(off_grid.tolist()) <= events
-    # Every grid time of the run is sampled (the grid is not thinned by events).
+    # Every grid time is sampled while a joint moves (the grid is not thinned by events); once
+    # every joint is locked nothing moves, and only the ends of that phase are recorded.
+    moving = result.free.any(axis=1)
+    last_free = float(result.t[np.flatnonzero(moving)[-1]])
     grid = np.arange(1, 1000) * dt
-    assert np.all(np.isin(grid, result.t))
+    assert np.all(np.isin(grid[grid < last_free], result.t))
+    locked = result.t[result.t > last_free]
+    assert locked.size <= 3 and locked[-1] == 1.0
     # The accepted steps of the plain run are gone (except where they are events).
     plain = runs[None].result
     steps = set(plain.t.tolist()) - events

@@ -271,3 +271,64 @@ def test_run_no_plots_writes_no_figures(tmp_path: Path) -> None:
     assert main(["run", "pendulum3r", "--out", str(tmp_path), "--no-plots", "--quiet"]) == 0
     assert not list(tmp_path.glob("*.png"))
     assert (tmp_path / "summary.json").is_file()
+
+
+# -- the shipped studies ---------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def annex_b_study(tmp_path_factory: pytest.TempPathFactory) -> pd.DataFrame:
+    """The shipped UR10 Annex-B study, all 162 cases on two workers (about 10 s)."""
+    out = tmp_path_factory.mktemp("annex_b") / "out"
+    return run_study(load_study(find_study("ur10_annex_b")), out, workers=2).table
+
+
+def test_shipped_annex_b_study_stops_every_case(annex_b_study: pd.DataFrame) -> None:
+    assert len(annex_b_study) == 162 and (annex_b_study["status"] == "ok").all()
+
+
+def test_stopping_angle_grows_with_speed(annex_b_study: pd.DataFrame) -> None:
+    """Everything else fixed, a faster start travels farther (both categories)."""
+    fixed = ["joint", "payload", "extension", "category"]
+    for key, rows in annex_b_study.groupby(fixed):
+        angles = rows.sort_values("speed")["stop_angle"].to_numpy()
+        assert np.all(np.diff(angles) > 0.0), key
+
+
+def test_stopping_angle_grows_with_payload_moving_down(annex_b_study: pd.DataFrame) -> None:
+    """Shoulder and elbow (horizontal axes) moving down: gravity drives them, so more payload
+    travels farther in category 0; in category 1 the drives' ramp sets the travel until their
+    torque limit is reached, so it may stay equal but never shrinks (1e-9 rad: the same ramp)."""
+    down = annex_b_study[annex_b_study["joint"] != "shoulder_pan_joint"]
+    for key, rows in down.groupby(["joint", "speed", "extension", "category"]):
+        angles = rows.sort_values("payload")["stop_angle"].to_numpy()
+        if key[3] == 0:
+            assert np.all(np.diff(angles) > 0.0), key
+        else:
+            assert np.all(np.diff(angles) > -1e-9), key
+
+
+def test_shipped_brake_wear_study_runs(tmp_path: Path) -> None:
+    """The sampled study: 200 cases; worn brakes stop later (rank correlation > 0.1)."""
+    output = run_study(load_study(find_study("ur10_brake_wear")), tmp_path / "out", workers=2)
+    table = output.table
+    assert len(table) == 200 and "distribution.csv" in output.files
+    ok = table[table["status"] == "ok"]
+    assert len(ok) >= 150
+    correlation = ok["brake_scale"].corr(ok["stop_angle"], method="spearman")
+    assert correlation < -0.1
+
+
+def test_a_sampled_study_writes_a_distribution(tmp_path: Path) -> None:
+    vary = {
+        "joint": ["elbow_joint"],
+        "speed": {"min": 0.5, "max": 1.0},
+        "brake_scale": {"min": 0.8, "max": 1.0},
+        "duration": [0.9],
+    }
+    output = run_study(
+        load_study(write_study(tmp_path, vary, samples=3, seed=7)), tmp_path / "out", workers=1
+    )
+    assert {"distribution.csv", "report.html"} <= set(output.files)
+    assert output.summary["study"]["mode"] == "sampled" and output.summary["study"]["seed"] == 7
+    assert output.table["speed"].between(0.5, 1.0).all() and len(output.table) == 3

@@ -9,6 +9,7 @@ transition rule with J1 the joints already locked and J2 the ones locking now.
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import time
 from collections.abc import Callable, Sequence
@@ -224,7 +225,7 @@ def simulate(
             break
         t_end = min(queue[0].t, duration) if queue else duration
         phase = h.phase
-        segment = integrator.integrate(
+        segment = _sampling(integrator, phase).integrate(
             phase.rhs if progress is None else _reporting(phase.rhs, progress),
             t,
             phase.pack(h.q, h.v, h.extras),
@@ -479,6 +480,18 @@ def _check_energy(
             f"the energy moved) between t = {t[0]:g} s and {t[-1]:g} s with "
             f"{_settings(integrator)}: the step is too large for these dynamics; reduce it"
         )
+
+
+def _sampling(integrator: Integrator, phase: Phase) -> Integrator:
+    """The integrator for ``phase``: without dense output when every joint is locked.
+
+    Nothing moves then (the state holds only work integrals, which stay constant), so samples
+    at ``output_dt`` would repeat one state; the phase's ends are recorded instead.
+    """
+    if phase.k == 0 and getattr(integrator, "output_dt", None) is not None:
+        unsampled: Integrator = dataclasses.replace(integrator, output_dt=None)  # type: ignore[type-var]
+        return unsampled
+    return integrator
 
 
 def _reporting(rhs: Rhs, progress: Callable[[float], None]) -> Rhs:

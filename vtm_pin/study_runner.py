@@ -17,6 +17,7 @@ extra). A worker loads each robot model once (:func:`_cached_robot`), not once p
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import multiprocessing
@@ -30,6 +31,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -48,6 +50,8 @@ if TYPE_CHECKING:
 CASES_FOLDER, STATE_FILE = "cases", "study.json"
 #: Environment variables that pin a worker's BLAS / OpenMP pools to one thread.
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+#: Modules the pool's fork server imports once, before it forks the workers.
+PRELOAD = ["vtm_pin.study_runner", "vtm_pin.pipeline", "vtm_pin.annex_b", "example_robot_data"]
 #: Metrics of a case, in table order, with their units.
 METRICS = {
     "stop_time": "s",
@@ -110,6 +114,8 @@ class StudyOutput:
         summary: The JSON-ready summary written to ``summary.json``.
         files: Names of the files written into the output folder, sorted.
         computed: Cases computed by this call (the others were stored by an earlier one).
+        phases: Wall time of this call's phases [s]: ``cases`` (running and storing them),
+            ``outputs`` (table, summary, graphs and report).
     """
 
     study: Study
@@ -117,6 +123,7 @@ class StudyOutput:
     summary: Mapping[str, Any]
     files: tuple[str, ...]
     computed: int
+    phases: Mapping[str, float] = field(default_factory=dict)
 
 
 _ROBOTS: dict[tuple[Any, ...], Robot] = {}
@@ -339,6 +346,7 @@ def run_study(
         CaseTask(study.base, base_dir, str(study.scenario), study.scenario.stem, case)
         for case in todo
     ]
+    begin_cases = time.perf_counter()
     for record in _execute(tasks, workers or default_workers(), scheduler):
         begin = time.perf_counter()
         store.save(record)
@@ -347,7 +355,10 @@ def run_study(
             progress(len(store.records), len(cases))
     records = [store.records[case.id] for case in cases]
     executor = f"dask {scheduler}" if scheduler else f"{workers or default_workers()} workers"
-    return _finish(study, out, records, executor, len(tasks))
+    begin_outputs = time.perf_counter()
+    output = _finish(study, out, records, executor, len(tasks))
+    phases = {"cases": begin_outputs - begin_cases, "outputs": time.perf_counter() - begin_outputs}
+    return dataclasses.replace(output, phases=phases)
 
 
 def _execute(tasks: Sequence[CaseTask], workers: int, scheduler: str | None) -> Iterator[dict]:
@@ -365,7 +376,7 @@ def _on_pool(tasks: Sequence[CaseTask], workers: int) -> Iterator[dict]:
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
     if "forkserver" in methods:
-        context.set_forkserver_preload(["vtm_pin.study_runner", "vtm_pin.pipeline"])
+        context.set_forkserver_preload(PRELOAD)
     saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
     os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))  # inherited by the workers
     try:
@@ -393,7 +404,16 @@ def _drain(
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
-                yield future.result()
+                try:
+                    record = future.result()
+                except BrokenProcessPool as exc:
+                    raise StudyError(
+                        "",
+                        "",
+                        "a worker process died (out of memory, or killed); the finished cases "
+                        "are stored: run the same command again to continue",
+                    ) from exc
+                yield record
                 more = next(queue, None)
                 if more is not None:
                     pending.add(executor.submit(run_case, more))
