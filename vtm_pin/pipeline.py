@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ from .exceptions import OutputError, ScenarioError, excerpt
 from .report import build_summary, write_trajectory
 from .results import SimulationResult
 from .scenario import SCENARIOS_DIR, Scenario, load_scenario, run_scenario
+from .staging import write_staged
 from .stopping import StoppingReport, compute_stopping_report
 
 if TYPE_CHECKING:
@@ -194,27 +194,16 @@ def write_outputs(
         from .plotting import plot_run  # Matplotlib only when figures are wanted
 
         figures = plot_run(output)
-    out = Path(out)
-    staging: Path | None = None
-    try:
-        parent = out.resolve().parent
-        parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
+    shown = figures
+
+    def write(staging: Path) -> None:
         (staging / "summary.json").write_text(
             json.dumps(output.summary, indent=2, allow_nan=False) + "\n"
         )
         for rule, result in output.results.items():
             suffix = "" if rule == output.rule else f"_{rule}"
             write_trajectory(staging / f"trajectory{suffix}.csv", result)
-        for filename, figure in figures.items():
+        for filename, figure in shown.items():
             figure.savefig(staging / filename, dpi=FIGURE_DPI)
-        out.mkdir(parents=True, exist_ok=True)
-        written = sorted(item.name for item in staging.iterdir())
-        for name in written:
-            os.replace(staging / name, out / name)
-    except OSError as exc:
-        raise OutputError(str(out), f"cannot write '{out}' ({exc.strerror or exc})") from exc
-    finally:
-        if staging is not None:
-            shutil.rmtree(staging, ignore_errors=True)
-    return written
+
+    return write_staged(out, write)

@@ -23,7 +23,6 @@ import math
 import multiprocessing
 import os
 import platform
-import shutil
 import signal
 import statistics
 import sys
@@ -38,6 +37,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .exceptions import OutputError, StudyError, VtmError
+from .staging import write_staged
 from .study import Case, Study
 
 if TYPE_CHECKING:
@@ -457,21 +457,14 @@ def _finish(
 
     table = results_table(study, records)
     summary = build_study_summary(study, records, executor)
-    staging: Path | None = None
-    try:
-        staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=out))
+
+    def write(staging: Path) -> None:
         table.to_parquet(staging / "results.parquet", index=False)
         table.to_csv(staging / "results.csv", index=False)
         (staging / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
         write_study_report(staging, summary, table)
-        files = sorted(item.name for item in staging.iterdir())
-        for name in files:
-            os.replace(staging / name, out / name)
-    except OSError as exc:
-        raise OutputError(str(out), f"cannot write '{out}' ({exc.strerror or exc})") from exc
-    finally:
-        if staging is not None:
-            shutil.rmtree(staging, ignore_errors=True)
+
+    files = write_staged(out, write)
     return StudyOutput(study, table, summary, tuple(files), computed)
 
 
