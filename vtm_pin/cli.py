@@ -21,6 +21,15 @@ import numpy as np
 from tqdm import tqdm
 
 from .__main__ import forget_interrupt
+from .calibration import (
+    DEFAULT_FIT,
+    DISTANCE_SCATTER,
+    FIGURES,
+    TIME_SCATTER,
+    calibrate,
+    leave_one_out,
+)
+from .calibration_report import calibration_summary, format_calibration, write_calibration
 from .exceptions import (
     OutputError,
     ScenarioError,
@@ -35,6 +44,7 @@ from .pipeline import Progress, check_output_folder, find_scenario, run, write_o
 from .report import format_stopping, format_summary, integrator_settings
 from .robot import list_example_robots, list_local_robots, load_robot
 from .scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
+from .stopping_table import read_stopping_table
 from .study import find_study, load_study
 from .study_runner import CASES_FOLDER, format_study, run_study
 from .transitions import TRANSITIONS
@@ -62,6 +72,7 @@ examples:
   vtm-pin run pendulum3r --compare naive
   vtm-pin run scenarios/rx160l_estop_cat0.yaml --integrator dop853 --rtol 1e-8 --json
   vtm-pin study ur10_annex_b --out results/ur10_annex_b --workers 2
+  vtm-pin calibrate table.csv --robot ur5_cb3 --out results/ur5_cb3_calibration
   vtm-pin list scenarios
 """
 
@@ -208,6 +219,7 @@ def _parser() -> argparse.ArgumentParser:
     _output_options(run)
     run.set_defaults(func=_run)
     _study_parser(sub, formatter)
+    _calibrate_parser(sub, formatter)
 
     listing = sub.add_parser(
         "list",
@@ -292,6 +304,56 @@ def _study_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
     study.set_defaults(func=_study)
 
 
+def _calibrate_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
+    calibrate = sub.add_parser(
+        "calibrate",
+        help="fit hidden brake and drive figures to a maker's published stopping table",
+        description=_wrap(
+            "Turn every row of TABLE (the stopping-table CSV format of the README) into the "
+            "Annex-B scenario it describes, and fit the figures --fit names with least squares "
+            "on the published distances and times. Writes calibration.json (figures with "
+            "1-sigma uncertainties, every row published vs simulated, cost and rank), "
+            "calibrated.yaml (a drives-and-brakes fragment a scenario can include) and "
+            "calibration.png into --out."
+        ),
+        epilog=_EPILOG,
+        formatter_class=formatter,
+    )
+    calibrate.add_argument("table", metavar="TABLE", type=Path, help="stopping table (CSV)")
+    calibrate.add_argument(
+        "--robot", required=True, help="robot: a robots/ name, URDF path or example-robot-data name"
+    )
+    calibrate.add_argument(
+        "--fit",
+        default=",".join(DEFAULT_FIT),
+        metavar="FIGURES",
+        help=f"comma-separated figures to fit (default {','.join(DEFAULT_FIT)}): "
+        f"{', '.join(FIGURES)}",
+    )
+    calibrate.add_argument(
+        "--distance-scatter",
+        type=float,
+        default=DISTANCE_SCATTER,
+        metavar="X",
+        help=f"relative scatter of the published distances [-] (default {DISTANCE_SCATTER})",
+    )
+    calibrate.add_argument(
+        "--time-scatter",
+        type=float,
+        default=TIME_SCATTER,
+        metavar="X",
+        help=f"relative scatter of the published times [-] (default {TIME_SCATTER})",
+    )
+    calibrate.add_argument(
+        "--leave-one-out",
+        action="store_true",
+        help="also fit without each joint's rows and predict them (use shared figures)",
+    )
+    calibrate.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    _output_options(calibrate)
+    calibrate.set_defaults(func=_calibrate)
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -367,6 +429,40 @@ def _study(args: argparse.Namespace) -> int:
     elif not args.quiet:
         print(format_study(output, time.perf_counter() - begin))
         print(f"wrote {out}/: {', '.join(output.files)}")
+    return EXIT_OK
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    for option, value in (
+        ("--distance-scatter", args.distance_scatter),
+        ("--time-scatter", args.time_scatter),
+    ):
+        if not (0.0 < value <= 10.0):
+            raise ScenarioError("command line", option, f"{value} must be in (0, 10]")
+    try:
+        check_output_folder(args.out)
+    except OutputError as exc:
+        raise ScenarioError("command line", "--out", exc.problem) from exc
+    table = read_stopping_table(args.table)
+    fit = [name.strip() for name in args.fit.split(",") if name.strip()]
+    scatter = (args.distance_scatter, args.time_scatter)
+    show = not (args.quiet or args.json) and sys.stderr.isatty()
+    with tqdm(desc="fitting", unit="evaluation", file=sys.stderr, disable=not show) as bar:
+
+        def progress(evaluations: int) -> None:
+            bar.update(evaluations - bar.n)
+
+        calibration = calibrate(table, args.robot, fit, scatter=scatter, progress=progress)
+        checks = (
+            leave_one_out(table, args.robot, fit, scatter=scatter) if args.leave_one_out else []
+        )
+    summary = calibration_summary(calibration, table, checks)
+    written = write_calibration(args.out, calibration, table, checks, summary)
+    if args.json:
+        print(json.dumps(summary, indent=2, allow_nan=False))
+    elif not args.quiet:
+        print(format_calibration(summary))
+        print(f"wrote {args.out}/: {', '.join(written)}")
     return EXIT_OK
 
 

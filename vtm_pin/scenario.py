@@ -259,6 +259,13 @@ SCHEMA: dict[str, Any] = {
             "items": {"type": "string"},
             "description": "Stated assumptions of this scenario, quoted by the report.",
         },
+        "include": {
+            "type": "array",
+            "items": {"type": "string"},
+            "description": "Fragment files (relative to the scenario file) whose drives, "
+            "brakes and assumptions are merged in, such as vtm-pin calibrate's "
+            "calibrated.yaml; the scenario's own values win. Default: [].",
+        },
         "stop": {
             "type": "object",
             "additionalProperties": False,
@@ -567,6 +574,7 @@ def build_scenario(
     if not isinstance(raw, Mapping):
         raise ScenarioError(source, "", "a scenario must be a mapping of keys to values")
     _check_schema(raw, source)
+    raw = _with_includes(raw, source, base_dir)
     duration = float(raw["duration"])
 
     drives = {
@@ -705,6 +713,43 @@ def _initial_state(
         raise ScenarioError(source, f"annex_b.{exc.key}", exc.problem) from exc
     assumptions.extend(describe_conditions(conditions, state, tool_frame))
     return state.q, state.v, state
+
+
+#: Schema of a fragment a scenario includes: drives, brakes and the assumptions behind them.
+FRAGMENT_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "additionalProperties": False,
+    "properties": {
+        key: SCHEMA["properties"][key] for key in ("description", "drives", "brakes", "assumptions")
+    },
+}
+
+
+def _with_includes(raw: Mapping[str, Any], source: str, base_dir: Path | None) -> Mapping[str, Any]:
+    """``raw`` with its included fragments merged in (per joint; the scenario's keys win)."""
+    if not raw.get("include"):
+        return raw
+    merged = dict(raw)
+    assumptions: list[str] = []
+    for i, name in enumerate(raw["include"]):
+        path = Path(name) if base_dir is None else base_dir / name
+        key = f"include[{i}]"
+        try:
+            fragment = read_yaml(path, ScenarioError)
+        except ScenarioError as exc:
+            raise ScenarioError(source, key, f"{excerpt(name)}: {exc.problem}") from exc
+        if not isinstance(fragment, Mapping):
+            raise ScenarioError(source, key, f"{excerpt(name)} is not a mapping")
+        check_schema(fragment, FRAGMENT_SCHEMA, str(path), ScenarioError)
+        for section in ("drives", "brakes"):
+            joints = {**fragment.get(section, {})}
+            for joint, spec in merged.get(section, {}).items():
+                joints[joint] = {**joints.get(joint, {}), **spec}
+            if joints:
+                merged[section] = joints
+        assumptions += fragment.get("assumptions", [])
+    merged["assumptions"] = assumptions + list(raw.get("assumptions", []))
+    return merged
 
 
 def build_integrator(spec: Mapping[str, Any], duration: float, source: str = "") -> Integrator:

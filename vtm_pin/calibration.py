@@ -1,0 +1,478 @@
+"""Calibration: fit the hidden drive and brake figures of a robot to its published stopping data.
+
+Every row of a stopping table (:mod:`vtm_pin.stopping_table`) describes one ISO 10218-1
+Annex-B test: the tested joint alone moving at a speed, with a payload, at an extension, in a
+direction, stopped in a category. :func:`row_scenario` turns it into the scenario it describes
+(the studies' definitions: ``annex_b``, ``payload``, ``stop``), with every joint braked.
+:func:`calibrate` then fits the figures named by ``fit`` with
+``scipy.optimize.least_squares``, on the published distances and times weighted by their
+stated scatter:
+
+    r = ((d_sim - d_pub) / (s_d d_pub), (t_sim - t_pub) / (s_t t_pub))   for every row,
+
+where d is the tested joint's stopping angle [rad], t its stopping time [s] (from the signal
+until its speed stays below the rest speed), and s_d, s_t the relative scatter of each (by
+default 5 % and 20 %: the published distances are the more reliable figure). The uncertainty of
+each fitted figure is the square root of the diagonal of (J^T J)^-1, J the Jacobian of r with
+respect to the figures at the optimum: a 1-sigma value if the stated scatter is right. A figure
+the table cannot determine (a direction of J^T J with a singular value below
+:data:`RANK_RTOL` of the largest, columns scaled to unit norm) is flagged, and the rank is
+reported.
+
+The figures (``--fit``): ``delay`` (one brake delay for every joint [s]), ``delay:joint`` (one
+per tested joint), ``sliding`` (each tested joint's brake sliding torque, motor side [N m]),
+``sliding:shared`` (one for all tested joints), ``static`` / ``static:shared`` (static torque;
+otherwise it stays ``STATIC_RATIO`` x the sliding torque), ``rotor_inertia`` /
+``rotor_inertia:shared`` (motor side [kg m^2]), ``ramp`` (one brake force rise time [s]).
+Joints the table does not test keep their prior figures, which are stated as assumptions.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .exceptions import VtmError
+from .robot import Robot, load_robot
+from .stopping_table import StoppingRow, StoppingTable, check_joints
+
+#: The figures ``fit`` may name: (scenario key, unit, shared by every joint, positive scale).
+FIGURES: dict[str, tuple[str, str, bool, bool]] = {
+    "delay": ("delay", "s", True, False),
+    "delay:joint": ("delay", "s", False, False),
+    "sliding": ("sliding_torque", "N m", False, True),
+    "sliding:shared": ("sliding_torque", "N m", True, True),
+    "static": ("static_torque", "N m", False, True),
+    "static:shared": ("static_torque", "N m", True, True),
+    "rotor_inertia": ("rotor_inertia", "kg m^2", False, True),
+    "rotor_inertia:shared": ("rotor_inertia", "kg m^2", True, True),
+    "ramp": ("ramp", "s", True, False),
+}
+DEFAULT_FIT = ("delay", "sliding")
+#: Prior brake figures: delay [s], sliding torque as a fraction of the joint's effort limit
+#: (joint side, then divided by the gear ratio: motor side; a brake as strong as the drive, so
+#: that the search starts where the arm stops rather than falls), static / sliding ratio.
+PRIOR_DELAY, PRIOR_EFFORT_FRACTION, STATIC_RATIO = 0.05, 1.0, 1.25
+#: Prior rotor inertia [kg m^2] where the robot data give none, when it is fitted.
+PRIOR_ROTOR_INERTIA = 1.0e-4
+#: Default relative scatter of the published distances and times [-].
+DISTANCE_SCATTER, TIME_SCATTER = 0.05, 0.20
+#: Singular values of the column-scaled Jacobian below this fraction of the largest mark a
+#: direction the table does not determine (finite differences are good to ~1e-6 here).
+RANK_RTOL = 1.0e-4
+#: Largest delay or ramp fitted [s].
+MAX_TIME_FIGURE = 1.0
+#: Integrator of the row scenarios: adaptive, tight enough that finite differences of the
+#: stopping figures (steps of 1e-3 relative) are not noise.
+INTEGRATOR = {"method": "dop853", "rtol": 1.0e-10, "atol": 1.0e-12, "output_dt": 1.0e-3}
+#: Annex-B direction of each table motion.
+DIRECTIONS = {"horizontal": "positive", "down": "down", "up": "up"}
+
+
+class CalibrationError(VtmError):
+    """A calibration cannot be set up (an unknown figure, a row the model cannot pose)."""
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One fitted figure.
+
+    Attributes:
+        name: ``<figure>`` for a shared one, ``<figure>.<joint>`` otherwise.
+        key: Scenario key it sets in every joint's brake (or drive) it covers.
+        joints: The joints it covers.
+        unit: SI unit.
+        positive: Fitted on a log scale (torques and inertias), else on [0, 1] s.
+    """
+
+    name: str
+    key: str
+    joints: tuple[str, ...]
+    unit: str
+    positive: bool
+
+
+@dataclass(frozen=True)
+class RowFit:
+    """A table row, published and simulated.
+
+    Attributes:
+        row: The row.
+        distance: Simulated stopping distance of the tested joint: its largest travel from
+            the signal on [rad] (its stopping angle when it stops; a joint that swings back
+            is not credited with the swing).
+        time: Simulated stopping time of the tested joint [s] (the run's end if it did not
+            stop).
+        stopped: Whether the tested joint came to rest.
+    """
+
+    row: StoppingRow
+    distance: float
+    time: float
+    stopped: bool
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The result of a fit.
+
+    Attributes:
+        robot: Robot name.
+        figures: The fitted figures.
+        values: Their fitted values (SI), by figure name.
+        uncertainty: 1-sigma uncertainty of each, from the Jacobian (inf if undetermined).
+        determined: Whether the table determines each figure.
+        rows: Published and simulated figures of every row, at the fitted values.
+        cost: Half the sum of squared weighted residuals.
+        rank: Rank of the weighted Jacobian.
+        singular_values: Of the column-scaled Jacobian, largest first.
+        evaluations: Residual evaluations (each simulates every row).
+        success: Whether least_squares reported convergence.
+        message: least_squares' message.
+        priors: Brake (and drive) figures of every joint used where not fitted.
+        scatter: Relative scatter (distance, time) the residuals were weighted with.
+    """
+
+    robot: str
+    figures: tuple[Figure, ...]
+    values: Mapping[str, float]
+    uncertainty: Mapping[str, float]
+    determined: Mapping[str, bool]
+    rows: tuple[RowFit, ...]
+    cost: float
+    rank: int
+    singular_values: tuple[float, ...]
+    evaluations: int
+    success: bool
+    message: str
+    priors: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    scatter: tuple[float, float] = (DISTANCE_SCATTER, TIME_SCATTER)
+
+
+def priors(robot: Robot) -> dict[str, dict[str, Any]]:
+    """Prior brake figures of every joint (motor side), and its drive.
+
+    Delay :data:`PRIOR_DELAY`; sliding torque :data:`PRIOR_EFFORT_FRACTION` of the effort
+    limit over the gear ratio (1 N m where the URDF gives no effort limit); static torque
+    :data:`STATIC_RATIO` x sliding; the drive's gear ratio and rotor inertia as loaded.
+    """
+    model = robot.model
+    out: dict[str, dict[str, Any]] = {}
+    for i, joint in enumerate(robot.joints):
+        ratio = float(robot.gear_ratio[i])
+        effort = float(model.effortLimit[i])
+        sliding = PRIOR_EFFORT_FRACTION * effort / ratio if 0.0 < effort < math.inf else 1.0
+        rotor = float(model.rotorInertia[i])
+        out[joint] = {
+            "delay": PRIOR_DELAY,
+            "sliding_torque": sliding,
+            "static_torque": STATIC_RATIO * sliding,
+            "gear_ratio": ratio,
+            "rotor_inertia": rotor,
+        }
+    return out
+
+
+def make_figures(fit: Sequence[str], tested: Sequence[str]) -> tuple[Figure, ...]:
+    """The figures ``fit`` names, for the joints the table tests.
+
+    Raises:
+        CalibrationError: An unknown figure, or one named twice.
+    """
+    figures: list[Figure] = []
+    keys: set[str] = set()
+    for name in fit:
+        if name not in FIGURES:
+            raise CalibrationError(
+                f"--fit: unknown figure '{name}'; the figures are: {', '.join(FIGURES)}"
+            )
+        key, unit, shared, positive = FIGURES[name]
+        if key in keys:
+            raise CalibrationError(f"--fit: {key} is named twice ('{name}')")
+        keys.add(key)
+        base = name.split(":")[0]
+        if shared:
+            figures.append(Figure(base, key, tuple(tested), unit, positive))
+        else:
+            figures += [Figure(f"{base}.{j}", key, (j,), unit, positive) for j in tested]
+    return tuple(figures)
+
+
+def row_scenario(
+    row: StoppingRow,
+    robot: str,
+    values: Mapping[str, float],
+    figures: Sequence[Figure],
+    prior: Mapping[str, Mapping[str, Any]],
+) -> dict[str, Any]:
+    """The scenario (parsed-YAML form) of one table row with the figures set to ``values``."""
+    figures_of = {joint: {k: v for k, v in spec.items()} for joint, spec in prior.items()}
+    for figure in figures:
+        for joint in figure.joints:
+            figures_of[joint][figure.key] = values[figure.name]
+    static_fitted = any(f.key == "static_torque" for f in figures)
+    brakes, drives = {}, {}
+    for joint, spec in figures_of.items():
+        static = spec["static_torque"] if static_fitted else STATIC_RATIO * spec["sliding_torque"]
+        brakes[joint] = {
+            "delay": spec["delay"],
+            "sliding_torque": spec["sliding_torque"],
+            "static_torque": max(static, spec["sliding_torque"]),
+            **({"ramp": spec["ramp"]} if "ramp" in spec else {}),
+        }
+        drives[joint] = {"gear_ratio": spec["gear_ratio"], "rotor_inertia": spec["rotor_inertia"]}
+    return {
+        "description": f"{row.robot}, table line {row.line}: {row.joint_label or row.joint}",
+        "robot": robot,
+        "annex_b": {
+            "joint": row.joint,
+            "speed": 1.0,
+            "max_speed": row.speed,
+            "extension": row.extension,
+            "direction": DIRECTIONS[row.motion],
+        },
+        "payload": {"mass": row.payload},
+        "duration": max(1.0, 3.0 * row.stop_time + 0.5),
+        "integrator": dict(INTEGRATOR),
+        "drives": drives,
+        "stop": {"t": 0.0, "category": row.category},
+        "brakes": brakes,
+    }
+
+
+def simulate_row(
+    row: StoppingRow,
+    robot: str,
+    values: Mapping[str, float],
+    figures: Sequence[Figure],
+    prior: Mapping[str, Mapping[str, Any]],
+    loader: Callable[..., Robot] = load_robot,
+) -> RowFit:
+    """Simulate one row; its tested joint's stopping angle and time.
+
+    Raises:
+        CalibrationError: The row's scenario is refused (a pose the robot cannot take, a
+            category-1 row: the ramp is not in the table), or a horizontal row whose joint
+            moves the tool vertically.
+    """
+    from .pipeline import run
+    from .scenario import build_scenario
+
+    raw = row_scenario(row, robot, values, figures, prior)
+    if row.category != 0:
+        raise CalibrationError(
+            f"line {row.line}: category-1 rows need the drives' ramp, which the table does not "
+            "give; calibrate category-0 rows"
+        )
+    try:
+        scenario = build_scenario(raw, source=f"line {row.line}", name="row", loader=loader)
+        output = run(scenario)
+    except VtmError as exc:
+        raise CalibrationError(f"line {row.line}: {exc}") from exc
+    state = scenario.test_state
+    assert state is not None
+    if row.motion == "horizontal" and state.vertical:
+        raise CalibrationError(
+            f"line {row.line}: motion is horizontal, but {row.joint} moves the tool vertically "
+            "in the Annex-B pose (give down or up)"
+        )
+    joint = output.stopping[output.rule].joints[state.joint_index]
+    stopped = joint.stopped
+    time = joint.stop_time if stopped else float(output.result.t[-1])
+    q = output.result.q[:, state.joint_index]
+    return RowFit(row, float(np.max(np.abs(q - q[0]))), time, stopped)
+
+
+def residuals(fits: Sequence[RowFit], scatter: tuple[float, float]) -> np.ndarray:
+    """Weighted residuals: distance then time of every row (see the module docstring)."""
+    out = []
+    for fit in fits:
+        out.append((fit.distance - fit.row.stop_distance) / (scatter[0] * fit.row.stop_distance))
+        out.append((fit.time - fit.row.stop_time) / (scatter[1] * fit.row.stop_time))
+    return np.array(out)
+
+
+def calibrate(
+    table: StoppingTable,
+    robot_name: str,
+    fit: Sequence[str] = DEFAULT_FIT,
+    *,
+    scatter: tuple[float, float] = (DISTANCE_SCATTER, TIME_SCATTER),
+    rows: Sequence[StoppingRow] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> Calibration:
+    """Fit ``fit`` to the table's rows (or to ``rows``, a subset of them).
+
+    Args:
+        table: The published stopping table.
+        robot_name: The robot (a name vtm-pin can load).
+        fit: The figures to fit (see :data:`FIGURES`).
+        scatter: Relative scatter of the published distances and times [-].
+        rows: The rows to fit; all by default.
+        progress: Called with the number of residual evaluations so far.
+
+    Raises:
+        CalibrationError: Bad figures or rows (see :func:`simulate_row`).
+        InputError: The table names a joint the robot does not have.
+    """
+    from scipy.optimize import least_squares
+
+    robot = load_robot(robot_name)
+    check_joints(table, robot.joints)
+    used = list(table.rows if rows is None else rows)
+    figures = make_figures(fit, table.joints)
+    prior = priors(robot)
+    x0 = np.array([_to_x(f, _start(f, prior)) for f in figures])
+    lower = np.array([-np.inf if f.positive else 0.0 for f in figures])
+    upper = np.array([np.inf if f.positive else MAX_TIME_FIGURE for f in figures])
+    cache = _RobotCache(robot_name)
+    count = [0]
+
+    def fits_at(x: np.ndarray) -> list[RowFit]:
+        values = {f.name: _from_x(f, xi) for f, xi in zip(figures, x, strict=True)}
+        return [simulate_row(r, robot_name, values, figures, prior, cache) for r in used]
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        count[0] += 1
+        if progress is not None:
+            progress(count[0])
+        return residuals(fits_at(x), scatter)
+
+    solution = least_squares(
+        fun, np.clip(x0, lower, upper), bounds=(lower, upper), x_scale="jac", diff_step=1e-3
+    )
+    values = {f.name: _from_x(f, xi) for f, xi in zip(figures, solution.x, strict=True)}
+    # Jacobian with respect to the figures themselves (SI), not their log scale.
+    scale = np.array(
+        [_from_x(f, xi) if f.positive else 1.0 for f, xi in zip(figures, solution.x, strict=True)]
+    )
+    J = solution.jac / scale
+    sigma, determined, rank, singular = _uncertainty(J)
+    return Calibration(
+        robot=robot_name,
+        figures=figures,
+        values=values,
+        uncertainty={f.name: float(s) for f, s in zip(figures, sigma, strict=True)},
+        determined={f.name: bool(d) for f, d in zip(figures, determined, strict=True)},
+        rows=tuple(fits_at(solution.x)),
+        cost=float(solution.cost),
+        rank=rank,
+        singular_values=tuple(float(s) for s in singular),
+        evaluations=count[0],
+        success=bool(solution.success),
+        message=str(solution.message),
+        priors=prior,
+        scatter=scatter,
+    )
+
+
+class _RobotCache:
+    """Loads the robot once per drives, for the many runs of a fit."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.robots: dict[tuple[Any, ...], Robot] = {}
+
+    def __call__(self, spec: Any, drives: Any = None, base_dir: Path | None = None) -> Robot:
+        key = (str(spec), tuple(sorted((drives or {}).items())))
+        if key not in self.robots:
+            self.robots[key] = load_robot(spec, drives=drives, base_dir=base_dir)
+        return self.robots[key]
+
+
+def _start(figure: Figure, prior: Mapping[str, Mapping[str, Any]]) -> float:
+    """The start of a figure's search: its prior (a rotor inertia of 0 starts at 1e-4)."""
+    value = float(prior[figure.joints[0]][figure.key])
+    if figure.key == "rotor_inertia" and value <= 0.0:
+        return PRIOR_ROTOR_INERTIA
+    return value
+
+
+def predict(calibration: Calibration, rows: Sequence[StoppingRow]) -> list[RowFit]:
+    """Simulate ``rows`` with the fitted figures (e.g. rows left out of the fit)."""
+    cache = _RobotCache(calibration.robot)
+    return [
+        simulate_row(
+            row,
+            calibration.robot,
+            calibration.values,
+            calibration.figures,
+            calibration.priors,
+            cache,
+        )
+        for row in rows
+    ]
+
+
+@dataclass(frozen=True)
+class LeftOut:
+    """A leave-one-out check: fit without one joint's rows, then predict them.
+
+    Attributes:
+        joint: The joint left out.
+        calibration: The fit on the other joints' rows.
+        predictions: The left-out rows, simulated with that fit.
+    """
+
+    joint: str
+    calibration: Calibration
+    predictions: tuple[RowFit, ...]
+
+
+def leave_one_out(
+    table: StoppingTable,
+    robot_name: str,
+    fit: Sequence[str] = DEFAULT_FIT,
+    *,
+    scatter: tuple[float, float] = (DISTANCE_SCATTER, TIME_SCATTER),
+) -> list[LeftOut]:
+    """For each tested joint: fit on the other joints' rows and predict its own.
+
+    Only figures shared by the joints (``delay``, ``sliding:shared``, ...) carry over to the
+    joint left out; its own per-joint figures stay at their priors and are flagged as not
+    determined by the fit.
+    """
+    checks = []
+    for joint in table.joints:
+        kept = [row for row in table.rows if row.joint != joint]
+        left = [row for row in table.rows if row.joint == joint]
+        calibration = calibrate(table, robot_name, fit, scatter=scatter, rows=kept)
+        checks.append(LeftOut(joint, calibration, tuple(predict(calibration, left))))
+    return checks
+
+
+def _to_x(figure: Figure, value: float) -> float:
+    return math.log(value) if figure.positive else value
+
+
+def _from_x(figure: Figure, x: float) -> float:
+    return math.exp(x) if figure.positive else float(x)
+
+
+def _uncertainty(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """1-sigma uncertainties, which figures are determined, the rank and singular values.
+
+    The rank is read off the Jacobian with unit-norm columns (so that seconds and N m
+    compare); a figure is undetermined when it has a component above 0.1 in a direction of
+    the null space.
+    """
+    norms = np.linalg.norm(J, axis=0)
+    norms[norms == 0.0] = 1.0
+    scaled = J / norms
+    _, singular, vt = np.linalg.svd(scaled, full_matrices=True)
+    n = J.shape[1]
+    s = np.zeros(n)
+    s[: singular.size] = singular
+    keep = s > RANK_RTOL * max(float(s[0]), np.finfo(float).tiny)
+    rank = int(np.count_nonzero(keep))
+    null = vt[~keep]
+    determined = ~np.any(np.abs(null) > 0.1, axis=0) if null.size else np.ones(n, dtype=bool)
+    covariance = np.linalg.pinv(scaled.T @ scaled, rcond=RANK_RTOL**2) / np.outer(norms, norms)
+    sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    sigma[~determined] = np.inf
+    return sigma, determined, rank, s

@@ -1,0 +1,281 @@
+"""What a calibration writes: calibration.json, the calibrated.yaml fragment, and the plot.
+
+``calibrated.yaml`` is a fragment a scenario includes (``include: [calibrated.yaml]``): the
+drives and brakes of every joint, each line marked with where its values come from (fitted to
+the table's source, or assumed), and the same statements under ``assumptions`` so that every
+report of a scenario that includes it quotes them.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from .calibration import (
+    MAX_TIME_FIGURE,
+    PRIOR_DELAY,
+    PRIOR_EFFORT_FRACTION,
+    STATIC_RATIO,
+    Calibration,
+    LeftOut,
+    RowFit,
+)
+from .staging import write_staged
+from .stopping_table import StoppingTable
+
+#: Resolution of the saved plot [dots per inch].
+FIGURE_DPI = 120
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+
+def calibration_summary(
+    calibration: Calibration, table: StoppingTable, checks: Sequence[LeftOut] = ()
+) -> dict[str, Any]:
+    """The JSON-ready ``calibration.json`` (keys documented in the README)."""
+    summary: dict[str, Any] = {
+        "robot": calibration.robot,
+        "table": table.path,
+        "sources": list(table.sources),
+        "fit": sorted({f.name.split(".")[0] for f in calibration.figures}),
+        "scatter": {"distance": calibration.scatter[0], "time": calibration.scatter[1]},
+        "parameters": [
+            {
+                "name": f.name,
+                "key": f.key,
+                "joints": list(f.joints),
+                "value": calibration.values[f.name],
+                "unit": f.unit,
+                "uncertainty": _finite(calibration.uncertainty[f.name]),
+                "determined": calibration.determined[f.name],
+                "at_bound": not f.positive
+                and not 1e-6 < calibration.values[f.name] < MAX_TIME_FIGURE - 1e-6,
+            }
+            for f in calibration.figures
+        ],
+        "rows": [_row(fit) for fit in calibration.rows],
+        "cost": calibration.cost,
+        "rank": calibration.rank,
+        "parameters_count": len(calibration.figures),
+        "singular_values": list(calibration.singular_values),
+        "evaluations": calibration.evaluations,
+        "success": calibration.success,
+        "message": calibration.message,
+        "priors": {joint: dict(spec) for joint, spec in calibration.priors.items()},
+        "units": {"stop_distance": "rad", "stop_time": "s", "uncertainty": "1 sigma, SI"},
+    }
+    if checks:
+        summary["leave_one_out"] = [
+            {
+                "joint": check.joint,
+                "parameters": {
+                    name: {
+                        "value": check.calibration.values[name],
+                        "uncertainty": _finite(check.calibration.uncertainty[name]),
+                        "determined": check.calibration.determined[name],
+                    }
+                    for name in check.calibration.values
+                },
+                "predicted": [_row(fit) for fit in check.predictions],
+            }
+            for check in checks
+        ]
+    return summary
+
+
+def _row(fit: RowFit) -> dict[str, Any]:
+    row = fit.row
+    return {
+        "line": row.line,
+        "joint": row.joint,
+        "stop_distance_published": row.stop_distance,
+        "stop_distance_simulated": fit.distance,
+        "stop_distance_residual": fit.distance - row.stop_distance,
+        "stop_time_published": row.stop_time,
+        "stop_time_simulated": fit.time,
+        "stop_time_residual": fit.time - row.stop_time,
+        "stopped": fit.stopped,
+    }
+
+
+def _finite(x: float) -> float | None:
+    return x if x == x and abs(x) != float("inf") else None
+
+
+def calibrated_fragment(calibration: Calibration, table: StoppingTable) -> str:
+    """The ``calibrated.yaml`` text: drives and brakes, every value marked with its origin."""
+    source = "; ".join(table.sources)
+    fitted = _fitted_keys(calibration)
+    lines = [
+        f"# Drives and brakes of {calibration.robot}, fitted by vtm-pin calibrate to",
+        f"#   {source}",
+        f"# (table {table.path}; fit {', '.join(f.name for f in calibration.figures)}).",
+        "# Include it from a scenario or a study's base scenario: include: [calibrated.yaml].",
+        "# Torques and rotor inertias motor side [N m, kg m^2], delays and ramps [s].",
+        "assumptions:",
+    ]
+    lines += [f"  - {json.dumps(text)}" for text in _statements(calibration, source)]
+    lines.append("drives:")
+    for joint, spec in calibration.priors.items():
+        values = _values(calibration, joint)
+        origin = _origin(fitted, joint, ["rotor_inertia"], source)
+        lines.append(
+            f"  {joint}: {{gear_ratio: {spec['gear_ratio']:.6g}, rotor_inertia: "
+            f"{values['rotor_inertia']:.6g}}}  # {origin}"
+        )
+    lines.append("brakes:")
+    static_fitted = any(f.key == "static_torque" for f in calibration.figures)
+    for joint in calibration.priors:
+        values = _values(calibration, joint)
+        static = (
+            values["static_torque"] if static_fitted else STATIC_RATIO * values["sliding_torque"]
+        )
+        ramp = f", ramp: {values['ramp']:.6g}" if "ramp" in values else ""
+        lines.append(
+            f"  {joint}: {{delay: {values['delay']:.6g}, sliding_torque: "
+            f"{values['sliding_torque']:.6g}, static_torque: "
+            f"{max(static, values['sliding_torque']):.6g}{ramp}}}  # "
+            + _origin(fitted, joint, ["delay", "sliding_torque", "static_torque", "ramp"], source)
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _values(calibration: Calibration, joint: str) -> dict[str, float]:
+    values = dict(calibration.priors[joint])
+    for figure in calibration.figures:
+        if joint in figure.joints:
+            values[figure.key] = calibration.values[figure.name]
+    return values
+
+
+def _fitted_keys(calibration: Calibration) -> dict[str, set[str]]:
+    fitted: dict[str, set[str]] = {}
+    for figure in calibration.figures:
+        if calibration.determined[figure.name]:
+            for joint in figure.joints:
+                fitted.setdefault(joint, set()).add(figure.key)
+    return fitted
+
+
+def _origin(fitted: Mapping[str, set[str]], joint: str, keys: Sequence[str], source: str) -> str:
+    mine = [k for k in keys if k in fitted.get(joint, set())]
+    if not mine:
+        return "assumed (prior; not determined by the table)"
+    rest = "; the others assumed" if len(mine) < len(keys) else ""
+    if "static_torque" in keys and "static_torque" not in mine and "sliding_torque" in mine:
+        rest = f"; static_torque = {STATIC_RATIO:g} x sliding (assumed){rest}"
+    return f"{', '.join(mine)} fitted to {source}{rest}"
+
+
+def _statements(calibration: Calibration, source: str) -> list[str]:
+    """One assumption line per fitted figure, then one for the priors."""
+    out = []
+    for figure in calibration.figures:
+        value = calibration.values[figure.name]
+        sigma = calibration.uncertainty[figure.name]
+        who = ", ".join(figure.joints)
+        side = " motor side" if figure.positive else ""
+        bound = " (at its lower bound 0)" if not figure.positive and value < 1e-6 else ""
+        if calibration.determined[figure.name]:
+            out.append(
+                f"{figure.key} of {who}: {value:.4g} {figure.unit}{side}{bound}, fitted to "
+                f"{source}, 1-sigma {sigma:.2g} {figure.unit}."
+            )
+        else:
+            out.append(
+                f"{figure.key} of {who}: {value:.4g} {figure.unit} was fitted but is NOT "
+                f"determined by {source} (assumed)."
+            )
+    out.append(
+        f"Brake and drive figures not fitted are assumed priors: delay {PRIOR_DELAY:g} s, "
+        f"sliding torque {PRIOR_EFFORT_FRACTION:g} x the URDF effort limit over the gear "
+        f"ratio, static = {STATIC_RATIO:g} x sliding, drives from the robot data."
+    )
+    return out
+
+
+def plot_calibration(calibration: Calibration, checks: Sequence[LeftOut] = ()) -> Figure:
+    """Published against simulated stopping distance and time, every row (and left-out rows)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10.0, 4.2), layout="constrained")
+    axes = fig.subplots(1, 2)
+    labels = [f"{fit.row.joint_label or fit.row.joint}" for fit in calibration.rows]
+    quantities = (
+        ("stop_distance", "stopping distance [rad]", lambda f: (f.row.stop_distance, f.distance)),
+        ("stop_time", "stopping time [s]", lambda f: (f.row.stop_time, f.time)),
+    )
+    for ax, (_, title, get) in zip(axes, quantities, strict=True):
+        published = [get(f)[0] for f in calibration.rows]
+        simulated = [get(f)[1] for f in calibration.rows]
+        x = range(len(labels))
+        ax.bar([i - 0.2 for i in x], published, width=0.4, label="published", color="0.6")
+        ax.bar([i + 0.2 for i in x], simulated, width=0.4, label="simulated (fit)", color="C0")
+        for check in checks:
+            for fit in check.predictions:
+                i = labels.index(fit.row.joint_label or fit.row.joint)
+                ax.plot(i + 0.2, get(fit)[1], "D", color="C3", label="predicted, left out")
+        ax.set_xticks(list(x), labels, rotation=15)
+        ax.set_title(title)
+        handles, names = ax.get_legend_handles_labels()
+        unique = dict(zip(names, handles, strict=True))
+        ax.legend(unique.values(), unique.keys(), fontsize="small")
+        ax.grid(axis="y", alpha=0.3)
+    fig.suptitle(
+        f"{calibration.robot}: published vs simulated (fit of "
+        f"{', '.join(f.name for f in calibration.figures)}; cost {calibration.cost:.3g})",
+        fontsize="medium",
+    )
+    return fig
+
+
+def write_calibration(
+    out: str | Path,
+    calibration: Calibration,
+    table: StoppingTable,
+    checks: Sequence[LeftOut],
+    summary: Mapping[str, Any],
+) -> list[str]:
+    """Write calibration.json, calibrated.yaml and calibration.png into ``out``, all or none."""
+    figure = plot_calibration(calibration, checks)
+
+    def write(staging: Path) -> None:
+        text = json.dumps(summary, indent=2, allow_nan=False)
+        (staging / "calibration.json").write_text(text + "\n")
+        (staging / "calibrated.yaml").write_text(calibrated_fragment(calibration, table))
+        figure.savefig(staging / "calibration.png", dpi=FIGURE_DPI)
+
+    return write_staged(out, write)
+
+
+def format_calibration(summary: Mapping[str, Any]) -> str:
+    """The fitted figures and the rows, published against simulated (for the command line)."""
+    lines = [
+        f"calibration of {summary['robot']} to {'; '.join(summary['sources'])}",
+        f"  cost {summary['cost']:.4g}, rank {summary['rank']} of "
+        f"{summary['parameters_count']} figures, {summary['evaluations']} evaluations",
+        f"  {'figure':<34} {'value':>11} {'1-sigma':>10}  unit",
+    ]
+    for p in summary["parameters"]:
+        sigma = "undetermined" if not p["determined"] else f"{p['uncertainty']:.3g}"
+        lines.append(f"  {p['name']:<34} {p['value']:>11.5g} {sigma:>10}  {p['unit']}")
+    lines.append(
+        f"  {'line':>4} {'joint':<22} {'d pub':>7} {'d sim':>7} [rad] {'t pub':>7} {'t sim':>7} [s]"
+    )
+    for r in summary["rows"]:
+        lines.append(
+            f"  {r['line']:>4} {r['joint']:<22} {r['stop_distance_published']:>7.3f} "
+            f"{r['stop_distance_simulated']:>7.3f}       {r['stop_time_published']:>7.3f} "
+            f"{r['stop_time_simulated']:>7.3f}"
+        )
+    for check in summary.get("leave_one_out", []):
+        for r in check["predicted"]:
+            lines.append(
+                f"  left out {r['joint']}: distance {r['stop_distance_simulated']:.3f} rad "
+                f"(published {r['stop_distance_published']:.3f}), time "
+                f"{r['stop_time_simulated']:.3f} s (published {r['stop_time_published']:.3f})"
+            )
+    return "\n".join(lines)
