@@ -17,6 +17,7 @@ import yaml
 
 from vtm_pin.cli import main
 from vtm_pin.exceptions import StudyError
+from vtm_pin.scenario import SCENARIOS_DIR
 from vtm_pin.study import NAMED_AXES, find_study, load_study, resolve_case
 from vtm_pin.study_runner import CASES_FOLDER, run_study
 
@@ -332,3 +333,72 @@ def test_a_sampled_study_writes_a_distribution(tmp_path: Path) -> None:
     assert {"distribution.csv", "report.html"} <= set(output.files)
     assert output.summary["study"]["mode"] == "sampled" and output.summary["study"]["seed"] == 7
     assert output.table["speed"].between(0.5, 1.0).all() and len(output.table) == 3
+
+
+# -- review fixes: includes, fingerprints, axis values, schedulers, all-failed studies ---------
+
+
+def test_brake_axes_act_on_included_brakes(tmp_path: Path) -> None:
+    """ur5_cb3_annex_b takes its brakes from an included fragment: brake_scale scales them."""
+    path = tmp_path / "wear.yaml"
+    path.write_text(
+        "scenario: ur5_cb3_annex_b\nvary:\n  brake_scale: [0.8, 1.0]\n  duration: [0.9]\n"
+    )
+    study = load_study(path)
+    assert "include" not in study.base and "shoulder_lift_joint" in study.base["brakes"]
+    table = run_study(study, tmp_path / "out", workers=1).table
+    worn, rated = table.sort_values("brake_scale")["stop_angle"]
+    assert worn > rated  # weaker brakes stop later
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert any("brake_scale" in line for line in summary["assumptions"])
+
+
+def test_a_changed_fragment_changes_the_fingerprint(tmp_path: Path) -> None:
+    fragment = tmp_path / "brakes.yaml"
+    fragment.write_text("brakes:\n  elbow_joint: {sliding_torque: 1.3}\n")
+    base = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
+    base["include"] = ["brakes.yaml"]
+    del base["brakes"]["elbow_joint"]  # the fragment's elbow brake is used
+    (tmp_path / "base.yaml").write_text(yaml.safe_dump(base))
+    study_file = tmp_path / "s.yaml"
+    study_file.write_text("scenario: base.yaml\nvary: {speed: [1.0]}\n")
+    before = load_study(study_file).fingerprint
+    fragment.write_text("brakes:\n  elbow_joint: {sliding_torque: 1.2}\n")
+    assert load_study(study_file).fingerprint != before
+
+
+@pytest.mark.parametrize(
+    ("vary", "phrase"),
+    [
+        ({"speed": ["fast"]}, "'fast' is not a fraction in (0, 1]"),
+        ({"speed": [1.5]}, "1.5 is not a fraction in (0, 1]"),
+        ({"category": [2]}, "2 is not 0 or 1"),
+        ({"category": [True]}, "True must be a number, a string or null"),  # the schema's
+        ({"payload": [-1.0]}, "-1.0 is not a mass >= 0 kg"),
+        ({"brake_scale": ["worn"]}, "'worn' is not a factor > 0"),
+        ({"speed": [0.5, 0.5]}, "0.5 is listed twice"),
+        ({"joint": [1]}, "1 is not a joint name"),
+    ],
+)
+def test_axis_values_of_the_wrong_kind_are_refused(tmp_path: Path, vary: dict, phrase: str) -> None:
+    with pytest.raises(StudyError) as info:
+        load_study(write_study(tmp_path, vary))
+    assert info.value.key.startswith(f"vary.{next(iter(vary))}") and phrase in info.value.problem
+
+
+def test_a_study_whose_cases_all_fail_is_an_error(tmp_path: Path) -> None:
+    path = write_study(tmp_path, {"joint": ["no_such_joint"], "duration": [0.9]})
+    with pytest.raises(StudyError, match=r"all 1 cases failed.*annex_b\.joint"):
+        run_study(load_study(path), tmp_path / "out", workers=1)
+    assert not (tmp_path / "out" / "results.parquet").exists()
+
+
+@pytest.mark.parametrize("address", ["nonsense", "tcp://127.0.0.1:1"])
+def test_a_bad_scheduler_fails_fast_and_writes_nothing(tmp_path: Path, address: str) -> None:
+    path = write_study(tmp_path, {"speed": [1.0], "duration": [0.9]})
+    begin = time.monotonic()
+    with pytest.raises(StudyError) as info:
+        run_study(load_study(path), tmp_path / "out", scheduler=address)
+    assert info.value.key == "--scheduler"
+    assert time.monotonic() - begin < 20.0  # CONNECT_TIMEOUT is 10 s
+    assert not (tmp_path / "out").exists()

@@ -275,6 +275,8 @@ _ALTERNATIVES = {
     "number": "a number",
     "array": "a list of numbers",
     "object": "a mapping of joint names to numbers",
+    "string": "a string",
+    "null": "null",
 }
 
 
@@ -302,6 +304,7 @@ def _describe(error: jsonschema.ValidationError) -> str:
     messages = {
         "minItems": "must list at least one entry" if limit == 1 else f"must list {limit} entries",
         "maxItems": f"must list at most {limit} entries",
+        "minProperties": "must name at least one key" if limit == 1 else f"needs {limit} keys",
         "multipleOf": f"{shown} must be a whole number",
     }
     return messages.get(kind, f"breaks the rule '{kind}' of the schema")
@@ -336,3 +339,29 @@ def _unit(schema: Mapping[str, Any]) -> str:
         return ""
     unit = description.split("[", 1)[1].split("]", 1)[0]
     return "" if unit in ("-", "") else f" {unit}"
+
+
+def find_shipped(spec: str | Path, folder: Path, what: str, error: type[InputError]) -> Path:
+    """The file ``spec`` names: an existing path, else the name of a ``.yaml`` in ``folder``.
+
+    A path that exists wins; otherwise a bare name (``pendulum3r``, or ``pendulum3r.yaml``)
+    names a file shipped in ``folder``. Any other path is returned as it is, so that reading
+    it reports what is wrong.
+
+    Raises:
+        InputError: (of class ``error``) ``spec`` is a bare name that is neither a file nor a
+            shipped one; the message lists the shipped ones.
+    """
+    path = Path(spec)
+    try:
+        if path.exists() or len(path.parts) != 1 or path.suffix not in ("", ".yaml"):
+            return path
+        shipped = folder / f"{path.stem}.yaml"
+        if shipped.is_file():
+            return shipped
+    except (OSError, ValueError):  # a name too long for a path, or with a NUL in it
+        return path
+    names = ", ".join(sorted(p.stem for p in folder.glob("*.yaml"))) or "none"
+    raise error(
+        excerpt(str(spec)), "", f"no such file, and not the name of a shipped {what} ({names})"
+    )

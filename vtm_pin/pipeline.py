@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .analysis import EnergyMomentum, compute_energy_momentum
-from .exceptions import OutputError, ScenarioError, excerpt
+from .exceptions import OutputError, ScenarioError
+from .inputs import find_shipped
 from .report import build_summary, write_trajectory
 from .results import SimulationResult
 from .scenario import SCENARIOS_DIR, Scenario, load_scenario, run_scenario
@@ -80,21 +81,7 @@ def find_scenario(spec: str | Path) -> Path:
         ScenarioError: ``spec`` is a bare name that is neither a file nor a shipped scenario;
             the message lists the shipped ones.
     """
-    path = Path(spec)
-    try:
-        if path.exists() or len(path.parts) != 1 or path.suffix not in ("", ".yaml"):
-            return path
-        shipped = SCENARIOS_DIR / f"{path.stem}.yaml"
-        if shipped.is_file():
-            return shipped
-    except (OSError, ValueError):  # a name too long for a path, or with a NUL in it
-        return path
-    names = ", ".join(sorted(p.stem for p in SCENARIOS_DIR.glob("*.yaml")))
-    raise ScenarioError(
-        excerpt(str(spec)),
-        "",
-        f"no such file, and not the name of a shipped scenario ({names})",
-    )
+    return find_shipped(spec, SCENARIOS_DIR, "scenario", ScenarioError)
 
 
 def run(

@@ -574,7 +574,7 @@ def build_scenario(
     if not isinstance(raw, Mapping):
         raise ScenarioError(source, "", "a scenario must be a mapping of keys to values")
     _check_schema(raw, source)
-    raw = _with_includes(raw, source, base_dir)
+    raw = merge_includes(raw, source, base_dir)
     duration = float(raw["duration"])
 
     drives = {
@@ -725,11 +725,17 @@ FRAGMENT_SCHEMA: dict[str, Any] = {
 }
 
 
-def _with_includes(raw: Mapping[str, Any], source: str, base_dir: Path | None) -> Mapping[str, Any]:
-    """``raw`` with its included fragments merged in (per joint; the scenario's keys win)."""
-    if not raw.get("include"):
+def merge_includes(raw: Mapping[str, Any], source: str, base_dir: Path | None) -> Mapping[str, Any]:
+    """``raw`` with its included fragments merged in (per joint; the scenario's keys win).
+
+    The result has no ``include`` key: merging it again changes nothing.
+
+    Raises:
+        ScenarioError: A fragment cannot be read or breaks the fragment schema.
+    """
+    if "include" not in raw:
         return raw
-    merged = dict(raw)
+    merged = {key: value for key, value in raw.items() if key != "include"}
     assumptions: list[str] = []
     for i, name in enumerate(raw["include"]):
         path = Path(name) if base_dir is None else base_dir / name

@@ -28,13 +28,14 @@ import json
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .exceptions import StudyError, excerpt
-from .inputs import check_schema, read_yaml
+from .inputs import check_schema, find_shipped, read_yaml
 
 #: Folder of the studies shipped with the project: ``studies/`` at the top of the source tree,
 #: installed as the package data ``vtm_pin.studies``.
@@ -116,11 +117,19 @@ def _scale_brakes(raw: dict[str, Any], value: Any) -> None:
         for key in ("sliding_torque", "static_torque"):
             if key in spec:
                 spec[key] = spec[key] * value
+    raw.setdefault("assumptions", []).append(
+        f"Worn brakes (study axis brake_scale): every brake torque stated above is scaled by "
+        f"{value:g} in this case."
+    )
 
 
 def _fail_brake(raw: dict[str, Any], value: Any) -> None:
     if value is not None and value != "none":
         raw.get("brakes", {}).pop(value, None)
+        raw.setdefault("assumptions", []).append(
+            f"Single fault (study axis failed_brake): the brake of {value} gives no torque in "
+            "this case."
+        )
 
 
 #: The named axes: how each sets its value into a case's scenario, and its description.
@@ -206,74 +215,43 @@ def find_study(spec: str | Path) -> Path:
     Raises:
         StudyError: ``spec`` is a bare name that is neither a file nor a shipped study.
     """
-    path = Path(spec)
-    try:
-        if path.exists() or len(path.parts) != 1 or path.suffix not in ("", ".yaml"):
-            return path
-        shipped = STUDIES_DIR / f"{path.stem}.yaml"
-        if shipped.is_file():
-            return shipped
-    except (OSError, ValueError):  # a name too long for a path, or with a NUL in it
-        return path
-    names = ", ".join(sorted(p.stem for p in STUDIES_DIR.glob("*.yaml"))) or "none"
-    raise StudyError(
-        excerpt(str(spec)), "", f"no such file, and not the name of a shipped study ({names})"
-    )
+    return find_shipped(spec, STUDIES_DIR, "study", StudyError)
 
 
 def load_study(path: str | Path) -> Study:
-    """Read and validate a study file, and its base scenario's YAML.
+    """Read and validate a study file, and its base scenario (fragments it includes merged).
 
-    The base scenario is only parsed here; each case's scenario is validated when it runs
-    (a case that breaks the scenario rules is recorded as failed with its message).
+    Each case's scenario is validated when it runs (a case that breaks the scenario rules is
+    recorded as failed with its message); the axes and their values are checked here.
 
     Raises:
         StudyError: The study file is missing, malformed, or its scenario cannot be read;
-            an axis is not a named axis nor a key path of the base scenario; a range in a
-            grid study; more than :data:`MAX_CASES` cases.
+            an axis is not a named axis nor a key path of the base scenario; a value of the
+            wrong kind for its axis, or listed twice; a range in a grid study; more than
+            :data:`MAX_CASES` cases.
     """
-    from .pipeline import find_scenario  # the pipeline imports the scenario machinery
-    from .scenario import SCHEMA, ScenarioError
-
     path = Path(path)
     source = str(path)
     raw = read_yaml(path, StudyError)
     if not isinstance(raw, Mapping):
         raise StudyError(source, "", "a study must be a mapping of keys to values")
     check_schema(raw, STUDY_SCHEMA, source, StudyError)
-    spec = str(raw["scenario"])
-    local = path.parent / spec
-    try:
-        scenario = local if local.is_file() else find_scenario(spec)
-        base = read_yaml(scenario, StudyError)
-    except ScenarioError as exc:
-        raise StudyError(source, "scenario", exc.problem) from exc
-    except StudyError as exc:
-        raise StudyError(source, "scenario", f"{scenario}: {exc.problem}") from exc
-    if not isinstance(base, Mapping):
-        raise StudyError(source, "scenario", f"{scenario} is not a scenario (not a mapping)")
+    scenario, base = _read_base(path, str(raw["scenario"]))
     samples = raw.get("samples")
-    axes: dict[str, list[Any] | tuple[float, float]] = {}
-    for name, values in raw["vary"].items():
-        _check_axis(name, base, SCHEMA, source)
-        if isinstance(values, Mapping):
-            if samples is None:
-                raise StudyError(
-                    source,
-                    f"vary.{name}",
-                    "a range {min, max} needs samples: N (a grid study takes lists)",
-                )
-            if not values["min"] <= values["max"]:
-                raise StudyError(source, f"vary.{name}", "min must be <= max")
-            axes[name] = (float(values["min"]), float(values["max"]))
-        else:
-            axes[name] = list(values)
-            if name == "failed_brake":
-                _check_failed_brakes(list(values), base, source)
+    axes = {
+        name: _axis(name, values, base, source, samples) for name, values in raw["vary"].items()
+    }
     count = samples or int(np.prod([len(v) for v in axes.values()], dtype=float))
     if count > MAX_CASES:
         raise StudyError(source, "vary", f"{count} cases; a study may have at most {MAX_CASES}")
-    fingerprint = _hash({"study": raw, "scenario": base})
+    fingerprint = _hash(
+        {
+            "study": raw,
+            "scenario": base,
+            "robot": _robot_digest(base, scenario.parent),
+            "vtm_pin": _version(),
+        }
+    )
     return Study(
         source=source,
         name=path.stem,
@@ -285,6 +263,107 @@ def load_study(path: str | Path) -> Study:
         seed=int(raw.get("seed", 0)),
         fingerprint=fingerprint,
     )
+
+
+def _read_base(path: Path, spec: str) -> tuple[Path, Mapping[str, Any]]:
+    """The base scenario's file and its parsed YAML, with the fragments it includes merged."""
+    from .pipeline import find_scenario  # the pipeline imports the scenario machinery
+    from .scenario import ScenarioError, merge_includes
+
+    source = str(path)
+    local = path.parent / spec
+    scenario = local
+    try:
+        scenario = local if local.is_file() else find_scenario(spec)
+        base = read_yaml(scenario, StudyError)
+        if not isinstance(base, Mapping):
+            raise StudyError(source, "scenario", f"{scenario} is not a scenario (not a mapping)")
+        return scenario, merge_includes(base, str(scenario), scenario.parent)
+    except ScenarioError as exc:
+        where = f"'{exc.key}': " if exc.key else ""
+        raise StudyError(source, "scenario", f"{where}{exc.problem}") from exc
+    except StudyError as exc:
+        if exc.source == source:
+            raise
+        raise StudyError(source, "scenario", f"{scenario}: {exc.problem}") from exc
+
+
+#: The kind of value each named axis takes: a test on one value, and what is allowed.
+_KINDS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "joint": (lambda v: isinstance(v, str), "a joint name"),
+    "failed_brake": (lambda v: isinstance(v, str), "a joint name, or none"),
+    "category": (lambda v: v in (0, 1) and not isinstance(v, bool), "0 or 1"),
+    "speed": (lambda v: _number(v) and 0.0 < v <= 1.0, "a fraction in (0, 1]"),
+    "extension": (lambda v: _number(v) and 0.0 < v <= 1.0, "a fraction in (0, 1]"),
+    "payload": (lambda v: _number(v) and v >= 0.0, "a mass >= 0 kg"),
+    "brake_scale": (lambda v: _number(v) and v > 0.0, "a factor > 0"),
+}
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _axis(
+    name: str, values: Any, base: Mapping[str, Any], source: str, samples: int | None
+) -> list[Any] | tuple[float, float]:
+    """One checked axis: its list of values, or its (min, max) range."""
+    from .scenario import SCHEMA
+
+    _check_axis(name, base, SCHEMA, source)
+    key = f"vary.{excerpt(name)}"
+    check, allowed = _KINDS.get(name, (lambda v: True, ""))
+    if isinstance(values, Mapping):
+        if samples is None:
+            raise StudyError(
+                source, key, "a range {min, max} needs samples: N (a grid study takes lists)"
+            )
+        if not values["min"] <= values["max"]:
+            raise StudyError(source, key, "min must be <= max")
+        if not (check(values["min"]) and check(values["max"])):
+            raise StudyError(source, key, f"the range must hold {allowed}")
+        return (float(values["min"]), float(values["max"]))
+    for value in values:
+        if not check(value):
+            raise StudyError(source, key, f"{_shown(value)} is not {allowed}")
+    repeated = [v for i, v in enumerate(values) if v in values[:i]]
+    if repeated:
+        raise StudyError(source, key, f"{_shown(repeated[0])} is listed twice")
+    if name == "failed_brake":
+        _check_failed_brakes(list(values), base, source)
+    return list(values)
+
+
+def _shown(value: Any) -> str:
+    """A value for a message: text in quotes, others as they are."""
+    return f"'{excerpt(value)}'" if isinstance(value, str) else excerpt(value)
+
+
+def _robot_digest(base: Mapping[str, Any], folder: Path) -> str:
+    """A digest of the robot's files (URDF and data file), or the package it comes from."""
+    from .robot import ROBOTS_DIR
+
+    spec = str(base.get("robot", ""))
+    for candidate in (folder / spec, ROBOTS_DIR / f"{spec}.urdf"):
+        try:
+            if candidate.is_file():
+                data = candidate.read_bytes()
+                side = candidate.with_suffix(".yaml")
+                data += side.read_bytes() if side.is_file() else b""
+                return hashlib.sha256(data).hexdigest()
+        except (OSError, ValueError):
+            continue
+    try:
+        return f"example-robot-data {version('example-robot-data')}"
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _version() -> str:
+    try:
+        return version("vtm_pin")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _check_axis(name: str, base: Mapping[str, Any], schema: Mapping[str, Any], source: str) -> None:

@@ -23,10 +23,12 @@ import math
 import multiprocessing
 import os
 import platform
+import re
 import signal
 import statistics
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -172,6 +174,7 @@ def run_case(task: CaseTask) -> dict[str, Any]:
         simulated = sum(r.wall_time for r in output.results.values())
         record.update(status=status, metrics=metrics)
         record["assumptions"] = list(output.summary.get("assumptions", []))
+        record["tool_frame"] = scenario.tool_frame
         record["timing"] = {
             "build": built - start,
             "simulate": simulated,
@@ -292,12 +295,22 @@ def _write_atomic(path: Path, text: str) -> None:
     """
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes it private; follow the umask instead
         with os.fdopen(fd, "w") as file:
             file.write(text)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()
 
 
 def default_workers() -> int:
@@ -335,6 +348,7 @@ def run_study(
         KeyboardInterrupt: Interrupted; the cases finished so far are stored.
     """
     out = Path(out)
+    client = _connect(scheduler) if scheduler else None  # before anything is written
     store = CaseStore(out, study)
     store.open()
     cases = study.cases()
@@ -347,26 +361,42 @@ def run_study(
         for case in todo
     ]
     begin_cases = time.perf_counter()
-    for record in _execute(tasks, workers or default_workers(), scheduler):
+    for record in _execute(tasks, workers or default_workers(), client):
         begin = time.perf_counter()
         store.save(record)
-        record.setdefault("timing", {})["write"] = time.perf_counter() - begin
+        record.setdefault("timing", {})["write"] = time.perf_counter() - begin  # this run's
         if progress is not None:
             progress(len(store.records), len(cases))
     records = [store.records[case.id] for case in cases]
-    executor = f"dask {scheduler}" if scheduler else f"{workers or default_workers()} workers"
+    _refuse_all_failed(study, records)
+    count = workers or default_workers()
+    executor = f"dask {scheduler}" if scheduler else f"{count} worker{'s' if count > 1 else ''}"
     begin_outputs = time.perf_counter()
     output = _finish(study, out, records, executor, len(tasks))
     phases = {"cases": begin_outputs - begin_cases, "outputs": time.perf_counter() - begin_outputs}
     return dataclasses.replace(output, phases=phases)
 
 
-def _execute(tasks: Sequence[CaseTask], workers: int, scheduler: str | None) -> Iterator[dict]:
+def _refuse_all_failed(study: Study, records: Sequence[Mapping[str, Any]]) -> None:
+    """A study none of whose cases ran is a broken study, not a result: say why, in one line."""
+    statuses = [str(r["status"]) for r in records]
+    if statuses and all(s.startswith("error") for s in statuses):
+        raise StudyError(
+            study.source,
+            "",
+            f"all {len(statuses)} cases failed (nothing written but the case records); the "
+            f"first: {statuses[0].removeprefix('error: ')}",
+        )
+
+
+def _execute(tasks: Sequence[CaseTask], workers: int, client: Any | None) -> Iterator[dict]:
     """Run the tasks; yields each record as soon as its case is done (in any order)."""
     if not tasks:
+        if client is not None:
+            client.close()
         return iter(())
-    if scheduler:
-        return _on_dask(tasks, scheduler)
+    if client is not None:
+        return _on_dask(tasks, client)
     if workers <= 1 or len(tasks) == 1:
         return (run_case(task) for task in tasks)
     return _on_pool(tasks, min(workers, len(tasks)))
@@ -380,7 +410,9 @@ def _on_pool(tasks: Sequence[CaseTask], workers: int) -> Iterator[dict]:
     saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
     os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))  # inherited by the workers
     try:
-        executor = ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker)
+        executor = ProcessPoolExecutor(
+            workers, mp_context=context, initializer=_init_worker, initargs=(os.getpid(),)
+        )
     finally:
         for name, value in saved.items():
             if value is None:
@@ -421,26 +453,67 @@ def _drain(
         executor.shutdown(wait=False, cancel_futures=True)
 
 
-def _init_worker() -> None:
-    """A pool worker: Ctrl-C is the driver's to handle (the worker finishes its case)."""
+def _init_worker(driver: int) -> None:
+    """A pool worker: Ctrl-C is the driver's to handle; the worker ends when the driver dies.
+
+    A driver killed outright (SIGKILL) cannot shut its pool down; a watchdog thread ends the
+    worker within :data:`WATCHDOG_PERIOD` seconds instead of leaving it to run.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_watch, args=(driver,), daemon=True).start()
 
 
-def _on_dask(tasks: Sequence[CaseTask], scheduler: str) -> Iterator[dict]:
+#: How often a pool worker checks that its driver is alive [s].
+WATCHDOG_PERIOD = 1.0
+
+
+def _watch(driver: int) -> None:
+    while True:
+        time.sleep(WATCHDOG_PERIOD)
+        try:
+            os.kill(driver, 0)
+        except ProcessLookupError:
+            os._exit(1)
+        except PermissionError:  # alive, owned by another user (a recycled pid): keep going
+            continue
+
+
+#: Seconds to wait for a Dask scheduler to answer.
+CONNECT_TIMEOUT = 10.0
+
+
+def _connect(scheduler: str) -> Any:
+    """A client of the Dask scheduler at ``scheduler`` (``tcp://host:port``).
+
+    Raises:
+        StudyError: dask.distributed is missing, the address is malformed, or the scheduler
+            does not answer within :data:`CONNECT_TIMEOUT` seconds.
+    """
     try:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import Client
     except ImportError as exc:
+        raise StudyError(
+            "command line", "--scheduler", "needs dask.distributed: pip install 'vtm_pin[cluster]'"
+        ) from exc
+    if not re.fullmatch(r"(tcp|tls|ws|wss|inproc)://[^\s/:]+:\d{1,5}", scheduler):
         raise StudyError(
             "command line",
             "--scheduler",
-            "needs dask.distributed: pip install 'vtm_pin[cluster]'",
-        ) from exc
+            f"'{scheduler}' is not a scheduler address such as tcp://host:8786",
+        )
     try:
-        client = Client(scheduler, timeout=30, set_as_default=False)
+        return Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
         raise StudyError(
-            "command line", "--scheduler", f"cannot reach the Dask scheduler {scheduler} ({exc})"
+            "command line",
+            "--scheduler",
+            f"no Dask scheduler answered at {scheduler} within {CONNECT_TIMEOUT:g} s ({exc})",
         ) from exc
+
+
+def _on_dask(tasks: Sequence[CaseTask], client: Any) -> Iterator[dict]:
+    from dask.distributed import as_completed
+
     try:
         futures = client.map(run_case, list(tasks), pure=False)
         for future in as_completed(futures, loop=client.loop):
@@ -518,7 +591,9 @@ def build_study_summary(
     }
     timing = [r["timing"] for r in records if "timing" in r]
     split = {
-        part: statistics.median(t.get(part, 0.0) for t in timing) if timing else None
+        part: statistics.median(t[part] for t in timing if part in t)
+        if any(part in t for t in timing)
+        else None
         for part in ("build", "simulate", "report", "write")
     }
     return {
@@ -528,7 +603,7 @@ def build_study_summary(
             "description": study.description,
             "scenario": str(study.scenario),
             "robot": str(study.base.get("robot", "")),
-            "tool_frame": str(study.base.get("tool_frame", "")),
+            "tool_frame": next((str(r["tool_frame"]) for r in records if "tool_frame" in r), ""),
             "mode": study.mode,
             "samples": study.samples,
             "seed": study.seed if study.samples is not None else None,
@@ -556,22 +631,58 @@ def _axis_text(name: str) -> str:
 
 
 def _common_assumptions(records: Sequence[Mapping[str, Any]]) -> list[str]:
-    """The assumptions stated by every finished case, then a note on the per-case ones."""
+    """The assumptions stated by every finished case, then those that vary between cases.
+
+    A statement whose numbers differ between cases (the payload's mass, the Annex-B speed and
+    pose) is listed once, its numbers shown as "…", after "Per case:".
+    """
     lists = [r["assumptions"] for r in records if "assumptions" in r]
     if not lists:
         return []
     common = [line for line in lists[0] if all(line in other for other in lists[1:])]
-    varying = {line for other in lists for line in other} - set(common)
-    if varying:
+    varying = dict.fromkeys(line for other in lists for line in other if line not in common)
+    groups: dict[str, list[str]] = {}
+    for line in varying:
+        groups.setdefault(_NUMBER.sub("…", line), []).append(line)
+    templates = [_template(lines) for lines in groups.values()]
+    shown = templates[:MAX_TEMPLATES]
+    common += [f"Per case: {template}" for template in shown]
+    if len(templates) > len(shown):
         common.append(
-            f"{len(varying)} further statements differ between cases (the payload and the "
-            "Annex-B speed and pose of each); each case's own are in cases/<case>.json."
+            f"{len(templates) - len(shown)} further per-case statements are in each case's "
+            "record, cases/<case>.json."
         )
     return common
 
 
+def _template(lines: Sequence[str]) -> str:
+    """Statements that differ only in numbers, as one: the numbers that differ shown as "…"."""
+    numbers = [_NUMBER.findall(line) for line in lines]
+    parts = _NUMBER.split(lines[0])
+    out = [parts[0]]
+    for k, part in enumerate(parts[1:]):
+        values = {found[k] for found in numbers}
+        out += [numbers[0][k] if len(values) == 1 else "…", part]
+    return "".join(out)
+
+
+#: A number in a statement (for grouping the statements that differ only in their numbers).
+_NUMBER = re.compile(r"(?<![\w.\-])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?(?![\w\-])")
+#: Most per-case statement templates listed in a study's summary.
+MAX_TEMPLATES = 30
+
+
 def _versions() -> dict[str, str]:
-    names = ("vtm_pin", "pin", "numpy", "scipy", "pandas", "pyarrow", "distributed")
+    names = (
+        "vtm_pin",
+        "pin",
+        "example-robot-data",
+        "numpy",
+        "scipy",
+        "pandas",
+        "pyarrow",
+        "distributed",
+    )
     found = {"python": platform.python_version(), "platform": sys.platform}
     for name in names:
         try:
