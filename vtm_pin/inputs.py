@@ -37,6 +37,35 @@ MAX_DEPTH = 32
 MAX_NODES = 10_000
 
 
+def read_text(path: Path, error: type[InputError]) -> str:
+    """The text of a file: at most :data:`MAX_FILE_BYTES`, strict UTF-8 (a BOM allowed).
+
+    Raises:
+        InputError: (as ``error``) The file cannot be read, is too large, or is not UTF-8
+            text (the message gives the byte, its offset and line).
+    """
+    source = str(path)
+    try:
+        with path.open("rb") as file:
+            data = file.read(MAX_FILE_BYTES + 1)
+    except (OSError, ValueError) as exc:  # ValueError: a NUL character in the path
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise error(source, "", f"cannot read the file ({reason})") from exc
+    if len(data) > MAX_FILE_BYTES:
+        raise error(source, "", f"is larger than {MAX_FILE_BYTES} bytes; is it the right file?")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        hint = " (it starts like UTF-16)" if data[:2] in (b"\xff\xfe", b"\xfe\xff") else ""
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise error(
+            source,
+            "",
+            f"is not UTF-8 text{hint}: byte 0x{data[exc.start]:02x} at offset {exc.start} "
+            f"(line {line}); save it as UTF-8",
+        ) from exc
+
+
 def read_yaml(path: Path, error: type[InputError]) -> Any:
     """The parsed YAML document of a file, read within the limits above.
 
@@ -49,24 +78,7 @@ def read_yaml(path: Path, error: type[InputError]) -> Any:
             is not valid YAML or breaks a limit; one line naming the file and the line.
     """
     source = str(path)
-    try:
-        with path.open("rb") as file:
-            data = file.read(MAX_FILE_BYTES + 1)
-    except (OSError, ValueError) as exc:  # ValueError: a NUL character in the path
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        raise error(source, "", f"cannot read the file ({reason})") from exc
-    if len(data) > MAX_FILE_BYTES:
-        raise error(source, "", f"is larger than {MAX_FILE_BYTES} bytes; is it the right file?")
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        hint = " (it starts like UTF-16)" if data[:2] in (b"\xff\xfe", b"\xfe\xff") else ""
-        raise error(
-            source,
-            "",
-            f"is not UTF-8 text{hint}: byte 0x{data[exc.start]:02x} at offset {exc.start}; "
-            "save it as UTF-8",
-        ) from exc
+    text = read_text(path, error)
     try:
         return yaml.load(text, Loader=_LimitedLoader)  # a SafeLoader: builds plain data only
     except yaml.MarkedYAMLError as exc:

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .exceptions import InputError, excerpt
-from .inputs import MAX_FILE_BYTES
+from .inputs import read_text
 
 #: How the tested joint moved at the stop signal.
 MOTIONS = ("horizontal", "down", "up")
@@ -251,28 +251,7 @@ def check_joints(table: StoppingTable, joints: Sequence[str]) -> None:
 
 def _read_text(path: Path) -> str:
     """The text of a file: at most :data:`~vtm_pin.inputs.MAX_FILE_BYTES`, strict UTF-8."""
-    source = str(path)
-    try:
-        with path.open("rb") as file:
-            data = file.read(MAX_FILE_BYTES + 1)
-    except (OSError, ValueError) as exc:  # ValueError: a NUL character in the path
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        raise TableError(source, "", f"cannot read the file ({reason})") from exc
-    if len(data) > MAX_FILE_BYTES:
-        raise TableError(
-            source, "", f"is larger than {MAX_FILE_BYTES} bytes; is it the right file?"
-        )
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        hint = " (it starts like UTF-16)" if data[:2] in (b"\xff\xfe", b"\xfe\xff") else ""
-        line = data.count(b"\n", 0, exc.start) + 1
-        raise TableError(
-            source,
-            "",
-            f"is not UTF-8 text{hint}: byte 0x{data[exc.start]:02x} at offset {exc.start} "
-            f"(line {line}); save it as UTF-8",
-        ) from exc
+    return read_text(path, TableError)
 
 
 def _records(source: str, text: str) -> list[tuple[int, list[str]]]:
