@@ -62,7 +62,7 @@ def synthetic(tmp_path_factory: pytest.TempPathFactory) -> Path:
             ],
         )
     )
-    figures = make_figures(["delay", "sliding"], draft.joints)
+    figures = make_figures(["delay", "sliding"], draft.joints, load_robot(ROBOT).joints)
     prior = priors(load_robot(ROBOT))
     rows = []
     for row, (joint, label, speed, payload, extension, motion) in zip(

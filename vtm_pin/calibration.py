@@ -67,6 +67,9 @@ DISTANCE_SCATTER, TIME_SCATTER = 0.05, 0.20
 RANK_RTOL = 1.0e-4
 #: Largest delay or ramp fitted [s].
 MAX_TIME_FIGURE = 1.0
+#: Range searched for torques [N m] and rotor inertias [kg m^2]: the scenario's own limits
+#: (1e6 N m, 100 kg m^2) with a margin, so that no trial step is refused by the schema.
+MIN_POSITIVE, MAX_TORQUE_FIGURE, MAX_INERTIA_FIGURE = 1.0e-9, 1.0e5, 10.0
 #: Integrator of the row scenarios: adaptive, tight enough that finite differences of the
 #: stopping figures (steps of 1e-3 relative) are not noise.
 INTEGRATOR = {"method": "dop853", "rtol": 1.0e-10, "atol": 1.0e-12, "output_dt": 1.0e-3}
@@ -125,8 +128,10 @@ class Calibration:
         robot: Robot name.
         figures: The fitted figures.
         values: Their fitted values (SI), by figure name.
-        uncertainty: 1-sigma uncertainty of each, from the Jacobian (inf if undetermined).
+        uncertainty: 1-sigma uncertainty of each, from the Jacobian (inf if undetermined,
+            NaN if held at a bound).
         determined: Whether the table determines each figure.
+        at_bound: Whether each figure ended at a bound of its search (a delay of 0, say).
         rows: Published and simulated figures of every row, at the fitted values.
         cost: Half the sum of squared weighted residuals.
         rank: Rank of the weighted Jacobian.
@@ -143,6 +148,7 @@ class Calibration:
     values: Mapping[str, float]
     uncertainty: Mapping[str, float]
     determined: Mapping[str, bool]
+    at_bound: Mapping[str, bool]
     rows: tuple[RowFit, ...]
     cost: float
     rank: int
@@ -178,8 +184,14 @@ def priors(robot: Robot) -> dict[str, dict[str, Any]]:
     return out
 
 
-def make_figures(fit: Sequence[str], tested: Sequence[str]) -> tuple[Figure, ...]:
+def make_figures(
+    fit: Sequence[str], tested: Sequence[str], joints: Sequence[str] = ()
+) -> tuple[Figure, ...]:
     """The figures ``fit`` names, for the joints the table tests.
+
+    A shared delay or ramp (the controller's and the brakes' timing) covers every joint of
+    the robot (``joints``; the tested ones if not given); other shared figures cover the
+    tested joints, whose brakes the table measures.
 
     Raises:
         CalibrationError: An unknown figure, or one named twice.
@@ -197,7 +209,8 @@ def make_figures(fit: Sequence[str], tested: Sequence[str]) -> tuple[Figure, ...
         keys.add(key)
         base = name.split(":")[0]
         if shared:
-            figures.append(Figure(base, key, tuple(tested), unit, positive))
+            covered = joints if key in ("delay", "ramp") and joints else tested
+            figures.append(Figure(base, key, tuple(covered), unit, positive))
         else:
             figures += [Figure(f"{base}.{j}", key, (j,), unit, positive) for j in tested]
     return tuple(figures)
@@ -325,11 +338,11 @@ def calibrate(
     robot = load_robot(robot_name)
     check_joints(table, robot.joints)
     used = list(table.rows if rows is None else rows)
-    figures = make_figures(fit, table.joints)
+    figures = make_figures(fit, table.joints, robot.joints)
     prior = priors(robot)
     x0 = np.array([_to_x(f, _start(f, prior)) for f in figures])
-    lower = np.array([-np.inf if f.positive else 0.0 for f in figures])
-    upper = np.array([np.inf if f.positive else MAX_TIME_FIGURE for f in figures])
+    lower = np.array([math.log(MIN_POSITIVE) if f.positive else 0.0 for f in figures])
+    upper = np.array([_upper(f) for f in figures])
     cache = _RobotCache(robot_name)
     count = [0]
 
@@ -352,13 +365,15 @@ def calibrate(
         [_from_x(f, xi) if f.positive else 1.0 for f, xi in zip(figures, solution.x, strict=True)]
     )
     J = solution.jac / scale
-    sigma, determined, rank, singular = _uncertainty(J)
+    active = solution.active_mask != 0  # figures held at a bound of their search
+    sigma, determined, rank, singular = _uncertainty(J, active)
     return Calibration(
         robot=robot_name,
         figures=figures,
         values=values,
         uncertainty={f.name: float(s) for f, s in zip(figures, sigma, strict=True)},
         determined={f.name: bool(d) for f, d in zip(figures, determined, strict=True)},
+        at_bound={f.name: bool(a) for f, a in zip(figures, active, strict=True)},
         rows=tuple(fits_at(solution.x)),
         cost=float(solution.cost),
         rank=rank,
@@ -383,6 +398,13 @@ class _RobotCache:
         if key not in self.robots:
             self.robots[key] = load_robot(spec, drives=drives, base_dir=base_dir)
         return self.robots[key]
+
+
+def _upper(figure: Figure) -> float:
+    """The upper bound of a figure's search variable (log scale for torques and inertias)."""
+    if not figure.positive:
+        return MAX_TIME_FIGURE
+    return math.log(MAX_INERTIA_FIGURE if figure.key == "rotor_inertia" else MAX_TORQUE_FIGURE)
 
 
 def _start(figure: Figure, prior: Mapping[str, Mapping[str, Any]]) -> float:
@@ -454,13 +476,28 @@ def _from_x(figure: Figure, x: float) -> float:
     return math.exp(x) if figure.positive else float(x)
 
 
-def _uncertainty(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+def _uncertainty(
+    J: np.ndarray, active: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
     """1-sigma uncertainties, which figures are determined, the rank and singular values.
 
     The rank is read off the Jacobian with unit-norm columns (so that seconds and N m
     compare); a figure is undetermined when it has a component above 0.1 in a direction of
-    the null space.
+    the null space. A figure held at a bound (``active``) is the fit's answer but has no
+    curvature there: it gets no uncertainty (NaN), and the others' are those with it fixed.
     """
+    sigma, determined, rank, s = _free_uncertainty(J[:, ~active])
+    out_sigma = np.full(J.shape[1], np.nan)
+    out_sigma[~active] = sigma
+    out_determined = np.ones(J.shape[1], dtype=bool)
+    out_determined[~active] = determined
+    return out_sigma, out_determined, rank + int(np.count_nonzero(active)), s
+
+
+def _free_uncertainty(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """:func:`_uncertainty` of the figures free of their bounds."""
+    if J.shape[1] == 0:
+        return np.zeros(0), np.zeros(0, dtype=bool), 0, np.zeros(0)
     norms = np.linalg.norm(J, axis=0)
     norms[norms == 0.0] = 1.0
     scaled = J / norms

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .calibration import (
-    MAX_TIME_FIGURE,
     PRIOR_DELAY,
     PRIOR_EFFORT_FRACTION,
     STATIC_RATIO,
@@ -51,8 +50,7 @@ def calibration_summary(
                 "unit": f.unit,
                 "uncertainty": _finite(calibration.uncertainty[f.name]),
                 "determined": calibration.determined[f.name],
-                "at_bound": not f.positive
-                and not 1e-6 < calibration.values[f.name] < MAX_TIME_FIGURE - 1e-6,
+                "at_bound": calibration.at_bound[f.name],
             }
             for f in calibration.figures
         ],
@@ -178,11 +176,15 @@ def _statements(calibration: Calibration, source: str) -> list[str]:
         sigma = calibration.uncertainty[figure.name]
         who = ", ".join(figure.joints)
         side = " motor side" if figure.positive else ""
-        bound = " (at its lower bound 0)" if not figure.positive and value < 1e-6 else ""
-        if calibration.determined[figure.name]:
+        if calibration.at_bound[figure.name]:
             out.append(
-                f"{figure.key} of {who}: {value:.4g} {figure.unit}{side}{bound}, fitted to "
-                f"{source}, 1-sigma {sigma:.2g} {figure.unit}."
+                f"{figure.key} of {who}: {value:.4g} {figure.unit}{side}, fitted to {source}: "
+                "held at the bound of its search (no uncertainty; the table asks for less)."
+            )
+        elif calibration.determined[figure.name]:
+            out.append(
+                f"{figure.key} of {who}: {value:.4g} {figure.unit}{side}, fitted to {source}, "
+                f"1-sigma {sigma:.2g} {figure.unit}."
             )
         else:
             out.append(
@@ -260,7 +262,13 @@ def format_calibration(summary: Mapping[str, Any]) -> str:
         f"  {'figure':<34} {'value':>11} {'1-sigma':>10}  unit",
     ]
     for p in summary["parameters"]:
-        sigma = "undetermined" if not p["determined"] else f"{p['uncertainty']:.3g}"
+        sigma = (
+            "at bound"
+            if p["at_bound"]
+            else "undetermined"
+            if not p["determined"]
+            else f"{p['uncertainty']:.3g}"
+        )
         lines.append(f"  {p['name']:<34} {p['value']:>11.5g} {sigma:>10}  {p['unit']}")
     lines.append(
         f"  {'line':>4} {'joint':<22} {'d pub':>7} {'d sim':>7} [rad] {'t pub':>7} {'t sim':>7} [s]"

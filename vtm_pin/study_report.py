@@ -319,7 +319,7 @@ def _stopping_figure(group: pd.DataFrame, layout: _Layout, title: str) -> Figure
     width = 2.5 + 3.4 * n
     fig = Figure(figsize=(width, 6.4))
     fig.subplots_adjust(
-        left=0.7 / width, right=1.0 - 2.0 / width, bottom=0.1, top=0.86, wspace=0.12, hspace=0.12
+        left=1.0 / width, right=1.0 - 2.0 / width, bottom=0.1, top=0.86, wspace=0.12, hspace=0.12
     )
     axes = fig.subplots(2, n, sharex=True, sharey="row", squeeze=False)
     ok = group[_status(group) == "ok"]
@@ -335,7 +335,7 @@ def _stopping_figure(group: pd.DataFrame, layout: _Layout, title: str) -> Figure
             ax.grid(alpha=0.3)
         axes[0, col].set_title(layout.titles[col], fontsize="medium")
         axes[1, col].set_xlabel(
-            "speed [% of velocity limit]" if "speed" in group.columns else "speed not varied"
+            "speed [% of maximum speed]" if "speed" in group.columns else "speed not varied"
         )
     for row, (_, label) in enumerate(_ROWS):
         axes[row, 0].set_ylabel(label)
