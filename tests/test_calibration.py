@@ -11,10 +11,13 @@ import pytest
 import yaml
 
 from vtm_pin.calibration import (
+    FIGURES,
     CalibrationError,
+    _start,
     calibrate,
     make_figures,
     priors,
+    row_scenario,
     simulate_row,
 )
 from vtm_pin.calibration_report import calibrated_fragment
@@ -212,3 +215,15 @@ def test_cli_refuses_bad_input_in_one_line(
     )
     assert "--time-scatter" in capsys.readouterr().err
     assert not out.exists()  # nothing written
+
+
+@pytest.mark.parametrize("name", sorted(FIGURES))
+def test_every_figure_builds_valid_row_scenarios(synthetic: Path, name: str) -> None:
+    """Each --fit figure has a prior and a start, and its rows are valid scenarios."""
+    table = read_stopping_table(synthetic)
+    robot = load_robot(ROBOT)
+    figures = make_figures([name], table.joints, robot.joints, table.joints)
+    prior = priors(robot)
+    values = {f.name: _start(f, prior) for f in figures}
+    for row in table.rows:
+        build_scenario(row_scenario(row, ROBOT, values, figures, prior), source="row")

@@ -65,8 +65,16 @@ DISTANCE_SCATTER, TIME_SCATTER = 0.05, 0.20
 #: Singular values of the column-scaled Jacobian below this fraction of the largest mark a
 #: direction the table does not determine (finite differences are good to ~1e-6 here).
 RANK_RTOL = 1.0e-4
+#: Most residual evaluations per fitted figure (a table that does not determine a figure lets
+#: it drift; the fit stops here and says so).
+MAX_EVALUATIONS_PER_FIGURE = 60
 #: Largest delay or ramp fitted [s].
 MAX_TIME_FIGURE = 1.0
+#: Smallest delay fitted [s]. At 0 a brake engages on a joint that has not started to move,
+#: and static friction holds a load that kinetic friction would not: a different branch of
+#: the Coulomb model (the outcome jumps between delay 0 and 1e-9 s). Real brakes engage
+#: milliseconds after the signal; the search stays on that side.
+MIN_DELAY = 1.0e-3
 #: Range searched for torques [N m] and rotor inertias [kg m^2]: the scenario's own limits
 #: (1e6 N m, 100 kg m^2) with a margin, so that no trial step is refused by the schema.
 MIN_POSITIVE, MAX_TORQUE_FIGURE, MAX_INERTIA_FIGURE = 1.0e-9, 1.0e5, 10.0
@@ -126,6 +134,7 @@ class Calibration:
 
     Attributes:
         robot: Robot name.
+        fit: The figures asked for, as given (``delay``, ``sliding:shared``, ...).
         figures: The fitted figures.
         values: Their fitted values (SI), by figure name.
         uncertainty: 1-sigma uncertainty of each, from the Jacobian (inf if undetermined,
@@ -144,6 +153,7 @@ class Calibration:
     """
 
     robot: str
+    fit: tuple[str, ...]
     figures: tuple[Figure, ...]
     values: Mapping[str, float]
     uncertainty: Mapping[str, float]
@@ -178,6 +188,7 @@ def priors(robot: Robot) -> dict[str, dict[str, Any]]:
             "delay": PRIOR_DELAY,
             "sliding_torque": sliding,
             "static_torque": STATIC_RATIO * sliding,
+            "ramp": 0.0,
             "gear_ratio": ratio,
             "rotor_inertia": rotor,
         }
@@ -185,13 +196,17 @@ def priors(robot: Robot) -> dict[str, dict[str, Any]]:
 
 
 def make_figures(
-    fit: Sequence[str], tested: Sequence[str], joints: Sequence[str] = ()
+    fit: Sequence[str],
+    tested: Sequence[str],
+    joints: Sequence[str] = (),
+    shared: Sequence[str] = (),
 ) -> tuple[Figure, ...]:
-    """The figures ``fit`` names, for the joints the table tests.
+    """The figures ``fit`` names, for the joints the fitted rows test (``tested``).
 
     A shared delay or ramp (the controller's and the brakes' timing) covers every joint of
     the robot (``joints``; the tested ones if not given); other shared figures cover the
-    tested joints, whose brakes the table measures.
+    joints of the whole table (``shared``; the tested ones if not given), so that a joint
+    left out of a fit gets them too. Per-joint figures cover the tested joints only.
 
     Raises:
         CalibrationError: An unknown figure, or one named twice.
@@ -203,13 +218,13 @@ def make_figures(
             raise CalibrationError(
                 f"--fit: unknown figure '{name}'; the figures are: {', '.join(FIGURES)}"
             )
-        key, unit, shared, positive = FIGURES[name]
+        key, unit, is_shared, positive = FIGURES[name]
         if key in keys:
             raise CalibrationError(f"--fit: {key} is named twice ('{name}')")
         keys.add(key)
         base = name.split(":")[0]
-        if shared:
-            covered = joints if key in ("delay", "ramp") and joints else tested
+        if is_shared:
+            covered = (joints if key in ("delay", "ramp") else shared) or tested
             figures.append(Figure(base, key, tuple(covered), unit, positive))
         else:
             figures += [Figure(f"{base}.{j}", key, (j,), unit, positive) for j in tested]
@@ -224,21 +239,7 @@ def row_scenario(
     prior: Mapping[str, Mapping[str, Any]],
 ) -> dict[str, Any]:
     """The scenario (parsed-YAML form) of one table row with the figures set to ``values``."""
-    figures_of = {joint: {k: v for k, v in spec.items()} for joint, spec in prior.items()}
-    for figure in figures:
-        for joint in figure.joints:
-            figures_of[joint][figure.key] = values[figure.name]
-    static_fitted = any(f.key == "static_torque" for f in figures)
-    brakes, drives = {}, {}
-    for joint, spec in figures_of.items():
-        static = spec["static_torque"] if static_fitted else STATIC_RATIO * spec["sliding_torque"]
-        brakes[joint] = {
-            "delay": spec["delay"],
-            "sliding_torque": spec["sliding_torque"],
-            "static_torque": max(static, spec["sliding_torque"]),
-            **({"ramp": spec["ramp"]} if "ramp" in spec else {}),
-        }
-        drives[joint] = {"gear_ratio": spec["gear_ratio"], "rotor_inertia": spec["rotor_inertia"]}
+    drives, brakes = drives_and_brakes(values, figures, prior)
     return {
         "description": f"{row.robot}, table line {row.line}: {row.joint_label or row.joint}",
         "robot": robot,
@@ -256,6 +257,34 @@ def row_scenario(
         "stop": {"t": 0.0, "category": row.category},
         "brakes": brakes,
     }
+
+
+def drives_and_brakes(
+    values: Mapping[str, float],
+    figures: Sequence[Figure],
+    prior: Mapping[str, Mapping[str, Any]],
+) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, float]]]:
+    """Every joint's drive and brake with the figures set to ``values``, the rest at priors.
+
+    The one rule for both the fit's scenarios and the calibrated fragment: the static torque
+    is :data:`STATIC_RATIO` x sliding unless it is fitted, and never below the sliding one.
+    """
+    spec = {joint: dict(figures) for joint, figures in prior.items()}
+    for figure in figures:
+        for joint in figure.joints:
+            spec[joint][figure.key] = values[figure.name]
+    static_fitted = any(f.key == "static_torque" for f in figures)
+    drives, brakes = {}, {}
+    for joint, s in spec.items():
+        static = s["static_torque"] if static_fitted else STATIC_RATIO * s["sliding_torque"]
+        brakes[joint] = {
+            "delay": s["delay"],
+            "sliding_torque": s["sliding_torque"],
+            "static_torque": max(static, s["sliding_torque"]),
+            "ramp": s["ramp"],
+        }
+        drives[joint] = {"gear_ratio": s["gear_ratio"], "rotor_inertia": s["rotor_inertia"]}
+    return drives, brakes
 
 
 def simulate_row(
@@ -279,19 +308,19 @@ def simulate_row(
     raw = row_scenario(row, robot, values, figures, prior)
     if row.category != 0:
         raise CalibrationError(
-            f"line {row.line}: category-1 rows need the drives' ramp, which the table does not "
+            f"row {row.line}: category-1 rows need the drives' ramp, which the table does not "
             "give; calibrate category-0 rows"
         )
     try:
-        scenario = build_scenario(raw, source=f"line {row.line}", name="row", loader=loader)
+        scenario = build_scenario(raw, source=f"row {row.line}", name="row", loader=loader)
         output = run(scenario)
     except VtmError as exc:
-        raise CalibrationError(f"line {row.line}: {exc}") from exc
+        raise CalibrationError(str(exc)) from exc
     state = scenario.test_state
     assert state is not None
     if row.motion == "horizontal" and state.vertical:
         raise CalibrationError(
-            f"line {row.line}: motion is horizontal, but {row.joint} moves the tool vertically "
+            f"row {row.line}: motion is horizontal, but {row.joint} moves the tool vertically "
             "in the Annex-B pose (give down or up)"
         )
     joint = output.stopping[output.rule].joints[state.joint_index]
@@ -338,10 +367,13 @@ def calibrate(
     robot = load_robot(robot_name)
     check_joints(table, robot.joints)
     used = list(table.rows if rows is None else rows)
-    figures = make_figures(fit, table.joints, robot.joints)
+    if not fit:
+        raise CalibrationError("--fit: name at least one figure")
+    tested = list(dict.fromkeys(row.joint for row in used))
+    figures = make_figures(fit, tested, robot.joints, table.joints)
     prior = priors(robot)
     x0 = np.array([_to_x(f, _start(f, prior)) for f in figures])
-    lower = np.array([math.log(MIN_POSITIVE) if f.positive else 0.0 for f in figures])
+    lower = np.array([_lower(f) for f in figures])
     upper = np.array([_upper(f) for f in figures])
     cache = _RobotCache(robot_name)
     count = [0]
@@ -357,7 +389,12 @@ def calibrate(
         return residuals(fits_at(x), scatter)
 
     solution = least_squares(
-        fun, np.clip(x0, lower, upper), bounds=(lower, upper), x_scale="jac", diff_step=1e-3
+        fun,
+        np.clip(x0, lower, upper),
+        bounds=(lower, upper),
+        x_scale="jac",
+        diff_step=1e-3,
+        max_nfev=MAX_EVALUATIONS_PER_FIGURE * len(figures),
     )
     values = {f.name: _from_x(f, xi) for f, xi in zip(figures, solution.x, strict=True)}
     # Jacobian with respect to the figures themselves (SI), not their log scale.
@@ -369,6 +406,7 @@ def calibrate(
     sigma, determined, rank, singular = _uncertainty(J, active)
     return Calibration(
         robot=robot_name,
+        fit=tuple(fit),
         figures=figures,
         values=values,
         uncertainty={f.name: float(s) for f, s in zip(figures, sigma, strict=True)},
@@ -398,6 +436,13 @@ class _RobotCache:
         if key not in self.robots:
             self.robots[key] = load_robot(spec, drives=drives, base_dir=base_dir)
         return self.robots[key]
+
+
+def _lower(figure: Figure) -> float:
+    """The lower bound of a figure's search variable (log scale for torques and inertias)."""
+    if figure.positive:
+        return math.log(MIN_POSITIVE)
+    return MIN_DELAY if figure.key == "delay" else 0.0
 
 
 def _upper(figure: Figure) -> float:
@@ -456,8 +501,7 @@ def leave_one_out(
     """For each tested joint: fit on the other joints' rows and predict its own.
 
     Only figures shared by the joints (``delay``, ``sliding:shared``, ...) carry over to the
-    joint left out; its own per-joint figures stay at their priors and are flagged as not
-    determined by the fit.
+    joint left out; per-joint figures are not fitted for it, so it keeps its priors there.
     """
     checks = []
     for joint in table.joints:

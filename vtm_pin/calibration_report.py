@@ -20,6 +20,7 @@ from .calibration import (
     Calibration,
     LeftOut,
     RowFit,
+    drives_and_brakes,
 )
 from .staging import write_staged
 from .stopping_table import StoppingTable
@@ -39,7 +40,7 @@ def calibration_summary(
         "robot": calibration.robot,
         "table": table.path,
         "sources": list(table.sources),
-        "fit": sorted({f.name.split(".")[0] for f in calibration.figures}),
+        "fit": list(calibration.fit),
         "scatter": {"distance": calibration.scatter[0], "time": calibration.scatter[1]},
         "parameters": [
             {
@@ -54,8 +55,9 @@ def calibration_summary(
             }
             for f in calibration.figures
         ],
-        "rows": [_row(fit) for fit in calibration.rows],
+        "rows": [_row(fit, calibration.scatter) for fit in calibration.rows],
         "cost": calibration.cost,
+        "chi2_per_dof": chi2_per_dof(calibration),
         "rank": calibration.rank,
         "parameters_count": len(calibration.figures),
         "singular_values": list(calibration.singular_values),
@@ -77,14 +79,21 @@ def calibration_summary(
                     }
                     for name in check.calibration.values
                 },
-                "predicted": [_row(fit) for fit in check.predictions],
+                "predicted": [_row(fit, calibration.scatter) for fit in check.predictions],
             }
             for check in checks
         ]
     return summary
 
 
-def _row(fit: RowFit) -> dict[str, Any]:
+def chi2_per_dof(calibration: Calibration) -> float | None:
+    """2 cost / (residuals - free figures): about 1 if the model fits within the scatter."""
+    free = sum(not calibration.at_bound[f.name] for f in calibration.figures)
+    dof = 2 * len(calibration.rows) - free
+    return 2.0 * calibration.cost / dof if dof > 0 else None
+
+
+def _row(fit: RowFit, scatter: tuple[float, float]) -> dict[str, Any]:
     row = fit.row
     return {
         "line": row.line,
@@ -95,6 +104,9 @@ def _row(fit: RowFit) -> dict[str, Any]:
         "stop_time_published": row.stop_time,
         "stop_time_simulated": fit.time,
         "stop_time_residual": fit.time - row.stop_time,
+        "stop_distance_sigmas": (fit.distance - row.stop_distance)
+        / (scatter[0] * row.stop_distance),
+        "stop_time_sigmas": (fit.time - row.stop_time) / (scatter[1] * row.stop_time),
         "stopped": fit.stopped,
     }
 
@@ -106,66 +118,51 @@ def _finite(x: float) -> float | None:
 def calibrated_fragment(calibration: Calibration, table: StoppingTable) -> str:
     """The ``calibrated.yaml`` text: drives and brakes, every value marked with its origin."""
     source = "; ".join(table.sources)
-    fitted = _fitted_keys(calibration)
+    drives, brakes = drives_and_brakes(calibration.values, calibration.figures, calibration.priors)
     lines = [
         f"# Drives and brakes of {calibration.robot}, fitted by vtm-pin calibrate to",
         f"#   {source}",
-        f"# (table {table.path}; fit {', '.join(f.name for f in calibration.figures)}).",
+        f"# (table {table.path}; --fit {','.join(calibration.fit)}).",
         "# Include it from a scenario or a study's base scenario: include: [calibrated.yaml].",
         "# Torques and rotor inertias motor side [N m, kg m^2], delays and ramps [s].",
         "assumptions:",
     ]
     lines += [f"  - {json.dumps(text)}" for text in _statements(calibration, source)]
     lines.append("drives:")
-    for joint, spec in calibration.priors.items():
-        values = _values(calibration, joint)
-        origin = _origin(fitted, joint, ["rotor_inertia"], source)
-        lines.append(
-            f"  {joint}: {{gear_ratio: {spec['gear_ratio']:.6g}, rotor_inertia: "
-            f"{values['rotor_inertia']:.6g}}}  # {origin}"
-        )
+    for joint, drive in drives.items():
+        origin = _origin(calibration, joint, ["rotor_inertia"], source)
+        lines.append(f"  {joint}: {_flow(drive)}  # {origin}")
     lines.append("brakes:")
-    static_fitted = any(f.key == "static_torque" for f in calibration.figures)
-    for joint in calibration.priors:
-        values = _values(calibration, joint)
-        static = (
-            values["static_torque"] if static_fitted else STATIC_RATIO * values["sliding_torque"]
-        )
-        ramp = f", ramp: {values['ramp']:.6g}" if "ramp" in values else ""
-        lines.append(
-            f"  {joint}: {{delay: {values['delay']:.6g}, sliding_torque: "
-            f"{values['sliding_torque']:.6g}, static_torque: "
-            f"{max(static, values['sliding_torque']):.6g}{ramp}}}  # "
-            + _origin(fitted, joint, ["delay", "sliding_torque", "static_torque", "ramp"], source)
-        )
+    keys = ["delay", "sliding_torque", "static_torque", "ramp"]
+    for joint, brake in brakes.items():
+        lines.append(f"  {joint}: {_flow(brake)}  # {_origin(calibration, joint, keys, source)}")
     return "\n".join(lines) + "\n"
 
 
-def _values(calibration: Calibration, joint: str) -> dict[str, float]:
-    values = dict(calibration.priors[joint])
+def _flow(values: Mapping[str, float]) -> str:
+    """A YAML flow mapping of numbers, 6 significant digits."""
+    return "{" + ", ".join(f"{key}: {value:.6g}" for key, value in values.items()) + "}"
+
+
+def _origin(calibration: Calibration, joint: str, keys: Sequence[str], source: str) -> str:
+    """Where a joint's values of ``keys`` come from: fitted, fitted but undetermined, assumed."""
+    fitted: list[str] = []
+    loose: list[str] = []
     for figure in calibration.figures:
-        if joint in figure.joints:
-            values[figure.key] = calibration.values[figure.name]
-    return values
-
-
-def _fitted_keys(calibration: Calibration) -> dict[str, set[str]]:
-    fitted: dict[str, set[str]] = {}
-    for figure in calibration.figures:
-        if calibration.determined[figure.name]:
-            for joint in figure.joints:
-                fitted.setdefault(joint, set()).add(figure.key)
-    return fitted
-
-
-def _origin(fitted: Mapping[str, set[str]], joint: str, keys: Sequence[str], source: str) -> str:
-    mine = [k for k in keys if k in fitted.get(joint, set())]
-    if not mine:
-        return "assumed (prior; not determined by the table)"
-    rest = "; the others assumed" if len(mine) < len(keys) else ""
-    if "static_torque" in keys and "static_torque" not in mine and "sliding_torque" in mine:
-        rest = f"; static_torque = {STATIC_RATIO:g} x sliding (assumed){rest}"
-    return f"{', '.join(mine)} fitted to {source}{rest}"
+        if joint in figure.joints and figure.key in keys:
+            (fitted if calibration.determined[figure.name] else loose).append(figure.key)
+    parts = []
+    if fitted:
+        parts.append(f"{', '.join(fitted)} fitted to {source}")
+    if loose:
+        parts.append(f"{', '.join(loose)} fitted but NOT determined by the table")
+    if "static_torque" in keys and "static_torque" not in fitted + loose:
+        parts.append(f"static_torque = {STATIC_RATIO:g} x sliding (assumed)")
+    if not parts:
+        return "assumed (priors)"
+    if len(fitted) + len(loose) < len(keys):
+        parts.append("the others assumed (priors)")
+    return "; ".join(parts)
 
 
 def _statements(calibration: Calibration, source: str) -> list[str]:
@@ -255,9 +252,11 @@ def write_calibration(
 
 def format_calibration(summary: Mapping[str, Any]) -> str:
     """The fitted figures and the rows, published against simulated (for the command line)."""
+    chi2 = summary["chi2_per_dof"]
     lines = [
         f"calibration of {summary['robot']} to {'; '.join(summary['sources'])}",
-        f"  cost {summary['cost']:.4g}, rank {summary['rank']} of "
+        f"  cost {summary['cost']:.4g} (chi2 per degree of freedom "
+        f"{'n/a' if chi2 is None else f'{chi2:.3g}'}), rank {summary['rank']} of "
         f"{summary['parameters_count']} figures, {summary['evaluations']} evaluations",
         f"  {'figure':<34} {'value':>11} {'1-sigma':>10}  unit",
     ]
@@ -279,6 +278,19 @@ def format_calibration(summary: Mapping[str, Any]) -> str:
             f"{r['stop_distance_simulated']:>7.3f}       {r['stop_time_published']:>7.3f} "
             f"{r['stop_time_simulated']:>7.3f}"
         )
+    far = [
+        f"row {r['line']} {quantity} {r[f'stop_{quantity}_sigmas']:+.1f} sigma"
+        for r in summary["rows"]
+        for quantity in ("distance", "time")
+        if abs(r[f"stop_{quantity}_sigmas"]) > 2.0
+    ]
+    if far or (chi2 is not None and chi2 > 2.0):
+        lines.append(
+            "  the model does not reproduce the table within its stated scatter"
+            + (f": {', '.join(far)}" if far else "")
+        )
+    if not summary["success"]:
+        lines.append(f"  the fit did not converge: {summary['message']}")
     for check in summary.get("leave_one_out", []):
         for r in check["predicted"]:
             lines.append(

@@ -64,6 +64,9 @@ RESULT_COLUMNS = (
     "tcp_distance",
     "tcp_path",
     "peak_tcp_speed",
+    "test_stop_time",
+    "test_speed",
+    "test_reach",
     "wall_time",
 )
 #: Statistics of the distribution table: label and function of the values of ok cases.
@@ -184,6 +187,8 @@ def annex_b_table(table: pd.DataFrame) -> pd.DataFrame:
         out[label] = values
     angle = _numbers(table, "stop_angle").abs().where(ok)
     out["stop_time [s]"] = _numbers(table, "stop_time").where(ok)
+    if "test_stop_time" in table.columns:  # the tested joint's own, as makers publish it
+        out["test_stop_time [s]"] = _numbers(table, "test_stop_time").where(ok)
     out["stop_angle [rad]"] = angle
     out["stop_angle [deg]"] = np.degrees(angle)
     out["tcp_distance [m]"] = _numbers(table, "tcp_distance").where(ok)

@@ -57,6 +57,7 @@ PRELOAD = ["vtm_pin.study_runner", "vtm_pin.pipeline", "vtm_pin.annex_b", "examp
 #: Metrics of a case, in table order, with their units.
 METRICS = {
     "stop_time": "s",
+    "test_stop_time": "s",
     "stop_angle": "rad",
     "tcp_distance": "m",
     "tcp_path": "m",
@@ -72,6 +73,9 @@ DEFINITIONS = {
     "end of the run (lengthen duration); error: <message>: the case failed.",
     "stop_time": "T [s], the overall stopping time of ISO 13855 (S = K T + C): from the stop "
     "signal until every joint's speed stays below stop.rest_speed.",
+    "test_stop_time": "Stopping time of the tested joint alone [s], as makers publish it (T waits "
+    "for every joint; another joint pushed by the stop, or falling until its own brake engages, "
+    "can make T longer).",
     "stop_angle": "Stopping distance of the tested joint [rad], |q(end) - q(signal)|; the joint "
     "with the largest travel when the case has no annex_b joint.",
     "tcp_distance": "S_s [m], the stopping distance of ISO/TS 15066 speed and separation "
@@ -207,6 +211,7 @@ def case_metrics(output: RunOutput) -> tuple[str, dict[str, float | None]]:
     )
     metrics: dict[str, float | None] = {
         "stop_time": report.all_stopped_time,
+        "test_stop_time": report.joints[tested].stop_time,
         "stop_angle": angles[tested],
         "tcp_distance": report.tcp_distance,
         "tcp_path": report.tcp_path_length,
