@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
+import math
 import statistics
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -31,6 +32,7 @@ from vtm_pin.scenario import Scenario, run_scenario
 from vtm_pin.topology import Topology
 from vtm_pin.transitions import TRANSITIONS
 from vtm_pin.transitions.projected import compute_null_space_projector
+from vtm_pin.transitions.recursive import compute_joint_lock_transition, weightless
 
 #: Step sizes [s] (rk4, euler) and relative tolerances [-] (dop853) of a full sweep.
 LADDERS: dict[str, list[float]] = {
@@ -46,6 +48,8 @@ COST_KEYS = [
     "kkt",
     "projected",
     "minimal",
+    "recursive",
+    "recursive_cached",
     "impulseDynamics",
     "crba",
     "rhs_reduced_aba",
@@ -237,6 +241,30 @@ def measure_transition_costs(
     for rule in ("kkt", "projected", "minimal"):
         transition = TRANSITIONS[rule]
         row[rule] = median_time(functools.partial(transition, M, J1, J2, v), budget)
+    row["recursive"] = row["recursive_cached"] = math.nan  # joint locks only
+    if not general:
+        free_model = weightless(model)
+        free_data = free_model.createData()
+        row["recursive"] = median_time(
+            functools.partial(
+                compute_joint_lock_transition, free_model, q, v, old, new, data=free_data
+            ),
+            budget,
+        )
+        ids = [free_model.getJointId(f"joint{i + 1}") for i in [*old, *new]]
+        reduced = pin.buildReducedModel(free_model, ids, q)
+        cached = functools.partial(
+            compute_joint_lock_transition,
+            free_model,
+            q,
+            v,
+            old,
+            new,
+            reduced=reduced,
+            data=free_data,
+            reduced_data=reduced.createData(),
+        )
+        row["recursive_cached"] = median_time(cached, budget)
     row["impulseDynamics"] = median_time(
         lambda: pin.impulseDynamics(model, data, q, v, J, 0.0, 0.0), budget
     )

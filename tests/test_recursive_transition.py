@@ -1,0 +1,70 @@
+"""The O(n) joint-lock transition agrees with the kkt rule (issue 14, item 2)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vtm_pin.chain import build_chain
+from vtm_pin.constraints import lock_jacobian
+from vtm_pin.dynamics import compute_M
+from vtm_pin.robot import load_robot
+from vtm_pin.transitions import TRANSITIONS
+from vtm_pin.transitions.recursive import compute_joint_lock_transition, weightless
+
+#: Two exact methods compared; their round-off grows with cond(M) (up to ~1e4 on these arms
+#: with armature), so 1e-12 relative to the largest value compared, times that condition.
+RTOL = 1e-12
+
+
+def compare(robot_model, q, v, locked_before, joints):
+    n = robot_model.nv
+    M = compute_M(robot_model, robot_model.createData(), q)
+    J1, J2 = lock_jacobian(n, locked_before), lock_jacobian(n, joints)
+    v = v.copy()
+    v[list(locked_before)] = 0.0
+    reference = TRANSITIONS["kkt"](M, J1, J2, v)
+    fast = compute_joint_lock_transition(weightless(robot_model), q, v, locked_before, joints)
+    tol = RTOL * np.linalg.cond(M)
+    scale = max(1.0, float(np.max(np.abs(reference.Lambda), initial=1.0)))
+    np.testing.assert_allclose(fast.v_plus, reference.v_plus, rtol=0, atol=tol * np.abs(v).max())
+    np.testing.assert_allclose(fast.Lambda, reference.Lambda, rtol=0, atol=tol * scale)
+    np.testing.assert_allclose(fast.p_free_plus, reference.p_free_plus, rtol=0, atol=tol * scale)
+    np.testing.assert_allclose(fast.p_free_plus, fast.p_free_minus, rtol=0, atol=tol * scale)
+    assert fast.energy_loss == pytest.approx(reference.energy_loss, rel=tol, abs=tol * scale)
+    assert fast.energy_loss >= -tol * scale
+    assert fast.m1 == reference.m1
+
+
+@pytest.mark.parametrize("name", ["ur10", "rx160l", "panda"])
+def test_recursive_lock_equals_kkt_on_arms(name: str) -> None:
+    robot = load_robot(name)
+    rng = np.random.default_rng(7)
+    n = robot.nv
+    for _ in range(5):
+        q = rng.uniform(-1.0, 1.0, n)
+        q = np.clip(q, robot.model.lowerPositionLimit, robot.model.upperPositionLimit)
+        v = rng.uniform(-2.0, 2.0, n)
+        order = rng.permutation(n)
+        k = int(rng.integers(0, n - 1))
+        compare(robot.model, q, v, sorted(order[:k].tolist()), [int(order[k])])
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(
+    n=st.integers(2, 30),
+    spatial=st.booleans(),
+    seed=st.integers(0, 2**31 - 1),
+    data=st.data(),
+)
+def test_recursive_lock_equals_kkt_on_chains(n, spatial, seed, data) -> None:
+    """Any lock set on any chain: the same jump, impulses and energy loss as kkt."""
+    robot = build_chain(n, spatial=spatial)
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1.5, 1.5, n)
+    v = rng.uniform(-2.0, 2.0, n)
+    joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
+    split = data.draw(st.integers(0, len(joints) - 1))
+    compare(robot.model, q, v, joints[:split], joints[split:])

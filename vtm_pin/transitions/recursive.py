@@ -1,0 +1,89 @@
+r"""Joint locks in O(n): the momentum-consistent jump from Pinocchio's recursive algorithms.
+
+When only joints lock (no frame constraints), the paper's transition keeps the momentum of the
+joints still free: with f the free and l the locked coordinates after the event,
+
+.. math::
+    M_{ff} \dot q_f^+ = (M \dot q^-)_f, \qquad \dot q_l^+ = 0.
+
+No dense M is needed. ``M v`` is one RNEA pass without gravity at zero velocity with the
+acceleration v, and ``M_ff^{-1} x`` one ABA pass on the model with the locked joints fixed
+(Pinocchio's ``buildReducedModel``), without gravity, at zero velocity, with the torque x. The
+impulses follow from the same product: M dv + J+^T Lambda = 0 gives Lambda_i = -(M dv)_i at
+each locked joint i. Every step is O(n); the kkt rule forms M and solves (n + m1 + m2)
+equations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from .base import TransitionResult
+
+
+def weightless(model: pin.Model) -> pin.Model:
+    """A copy of ``model`` without gravity (for the products M v and M^-1 tau)."""
+    copy = pin.Model(model)
+    copy.gravity = pin.Motion.Zero()
+    return copy
+
+
+def compute_joint_lock_transition(
+    model: pin.Model,
+    q: np.ndarray,
+    v_minus: np.ndarray,
+    locked_before: Sequence[int],
+    joints: Sequence[int],
+    reduced: pin.Model | None = None,
+    data: pin.Data | None = None,
+    reduced_data: pin.Data | None = None,
+) -> TransitionResult:
+    """Velocity jump when ``joints`` lock and ``locked_before`` stay locked, in O(n).
+
+    Args:
+        model: The robot's model without gravity (see :func:`weightless`), armature included.
+        q: Configuration at the event [rad], shape (nv,).
+        v_minus: Velocity just before the event [rad/s], zero at ``locked_before``.
+        locked_before: Velocity indices locked before the event (the rows of J1, in order).
+        joints: Velocity indices locking at the event (the rows of J2, in order).
+        reduced: ``model`` with every locked joint fixed at ``q``, gravity zero; built here if
+            not given.
+        data: ``model.createData()``, to pass in a loop: Pinocchio's ``createData`` is not
+            O(n) (266 ms at n = 200, against microseconds for the passes themselves).
+        reduced_data: ``reduced.createData()``, likewise (``buildReducedModel`` is not O(n)
+            either).
+
+    Returns:
+        The same transition as the kkt rule gives for unit-row J1 and J2: v+, Lambda (J1 rows
+        first), energy loss, the free joints' momenta before and after, residual 0.
+    """
+    locked = [*locked_before, *joints]
+    free = np.setdiff1d(np.arange(model.nv), locked)
+    data = model.createData() if data is None else data
+    zero = np.zeros(model.nv)
+    p_minus = np.array(pin.rnea(model, data, q, zero, v_minus))  # M v-
+    v_plus = np.zeros(model.nv)
+    if free.size:
+        if reduced is None:
+            ids = [model.joints[j].id for j in range(1, model.njoints)]
+            fixed = [ids[i] for i in range(len(ids)) if model.joints[ids[i]].idx_v in locked]
+            reduced = pin.buildReducedModel(model, fixed, q)
+            reduced_data = None
+        reduced_data = reduced.createData() if reduced_data is None else reduced_data
+        q_free = q[free]
+        v_plus[free] = pin.aba(reduced, reduced_data, q_free, np.zeros(free.size), p_minus[free])
+    dv = v_plus - v_minus
+    M_dv = np.array(pin.rnea(model, data, q, zero, dv))  # M (v+ - v-)
+    p_plus = p_minus + M_dv
+    return TransitionResult(
+        v_plus=v_plus,
+        Lambda=-M_dv[locked],
+        m1=len(locked_before),
+        energy_loss=0.5 * float(v_minus @ p_minus - v_plus @ p_plus),
+        p_free_minus=p_minus[free],
+        p_free_plus=p_plus[free],
+        residual=0.0,
+    )
