@@ -212,3 +212,16 @@ def test_robot_data_file_gives_drives_and_a_scenario_beside_the_urdf_is_not_one(
     assert load_robot(path).gear_ratio.tolist() == [1.0, 50.0, 1.0]
     (tmp_path / "bot.yaml").write_text("robot: bot.urdf\ninitial: {q: [0, 0, 0]}\nduration: 1\n")
     assert load_robot(path).gear_ratio.tolist() == [1.0, 1.0, 1.0]
+
+
+def test_robot_cache_loads_once_and_keeps_the_most_recent():
+    from vtm_pin.robot import Drive, RobotCache
+
+    cache = RobotCache(size=2)
+    first = cache("planar_3r")
+    assert cache("planar_3r") is first
+    geared = cache("planar_3r", drives={"joint1": Drive(gear_ratio=2.0)})
+    assert geared is not first and geared.gear_ratio[0] == 2.0
+    cache("ur5")  # a third robot: the least recently used one (planar_3r, geared) goes
+    assert cache("planar_3r") is first
+    assert cache("planar_3r", drives={"joint1": Drive(gear_ratio=2.0)}) is not geared

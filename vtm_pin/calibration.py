@@ -32,13 +32,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .exceptions import VtmError
-from .robot import Robot, load_robot
+from .robot import Robot, RobotCache, load_robot
 from .stopping_table import StoppingRow, StoppingTable, check_joints
 
 #: The figures ``fit`` may name: (scenario key, unit, shared by every joint, positive scale).
@@ -375,7 +374,7 @@ def calibrate(
     x0 = np.array([_to_x(f, _start(f, prior)) for f in figures])
     lower = np.array([_lower(f) for f in figures])
     upper = np.array([_upper(f) for f in figures])
-    cache = _RobotCache(robot_name)
+    cache = RobotCache()
     count = [0]
 
     def fits_at(x: np.ndarray) -> list[RowFit]:
@@ -424,20 +423,6 @@ def calibrate(
     )
 
 
-class _RobotCache:
-    """Loads the robot once per drives, for the many runs of a fit."""
-
-    def __init__(self, name: str) -> None:
-        self.name = name
-        self.robots: dict[tuple[Any, ...], Robot] = {}
-
-    def __call__(self, spec: Any, drives: Any = None, base_dir: Path | None = None) -> Robot:
-        key = (str(spec), tuple(sorted((drives or {}).items())))
-        if key not in self.robots:
-            self.robots[key] = load_robot(spec, drives=drives, base_dir=base_dir)
-        return self.robots[key]
-
-
 def _lower(figure: Figure) -> float:
     """The lower bound of a figure's search variable (log scale for torques and inertias)."""
     if figure.positive:
@@ -462,7 +447,7 @@ def _start(figure: Figure, prior: Mapping[str, Mapping[str, Any]]) -> float:
 
 def predict(calibration: Calibration, rows: Sequence[StoppingRow]) -> list[RowFit]:
     """Simulate ``rows`` with the fitted figures (e.g. rows left out of the fit)."""
-    cache = _RobotCache(calibration.robot)
+    cache = RobotCache()
     return [
         simulate_row(
             row,

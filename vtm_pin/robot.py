@@ -7,6 +7,7 @@ import os
 import re
 import sys
 import tempfile
+from collections import OrderedDict
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -219,6 +220,35 @@ def load_robot(
         tool_frame=tool_frame,
         assumptions=tuple(sidecar.get("assumptions", ())),
     )
+
+
+class RobotCache:
+    """:func:`load_robot` with memory: one load per robot, drives and folder, most recent kept.
+
+    For the many runs of a study or a fit: the robot returned is shared, and nothing in a run
+    modifies it (a payload is attached to a copy). A study or fit that varies the drives
+    loads a new robot for each; only the :attr:`size` most recently used are kept.
+    """
+
+    def __init__(self, size: int = 16) -> None:
+        self.size = size
+        self._robots: OrderedDict[tuple[Any, ...], Robot] = OrderedDict()
+
+    def __call__(
+        self,
+        spec: str | Path,
+        drives: Mapping[str, Drive] | None = None,
+        base_dir: Path | None = None,
+    ) -> Robot:
+        """The robot :func:`load_robot` returns for these arguments, loaded once."""
+        key = (str(spec), tuple(sorted((drives or {}).items())), str(base_dir))
+        robot = self._robots.pop(key, None)
+        if robot is None:
+            robot = load_robot(spec, drives=drives, base_dir=base_dir)
+        self._robots[key] = robot
+        while len(self._robots) > self.size:
+            self._robots.popitem(last=False)
+        return robot
 
 
 def _load_model(text: str, base_dir: Path | None) -> tuple[pin.Model, str]:

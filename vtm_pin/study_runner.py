@@ -12,7 +12,8 @@ Executors: one worker runs the cases in the driver process; more use a process p
 (``forkserver`` where available: the workers fork from a server that has imported vtm_pin and
 Pinocchio once), with BLAS / OpenMP threads pinned to 1 and Ctrl-C left to the driver. With a
 scheduler address the cases go to an existing ``dask.distributed`` cluster (the ``cluster``
-extra). A worker loads each robot model once (:func:`_cached_robot`), not once per case.
+extra). A worker loads each robot model once (a :class:`~vtm_pin.robot.RobotCache`), not once per
+case.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .exceptions import OutputError, StudyError, VtmError
+from .robot import RobotCache
 from .staging import write_staged
 from .study import Case, Study
 
@@ -46,7 +48,6 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from .pipeline import RunOutput
-    from .robot import Drive, Robot
 
 #: Files of a study's output folder.
 CASES_FOLDER, STATE_FILE = "cases", "study.json"
@@ -132,24 +133,8 @@ class StudyOutput:
     phases: Mapping[str, float] = field(default_factory=dict)
 
 
-_ROBOTS: dict[tuple[Any, ...], Robot] = {}
-
-
-def _cached_robot(
-    spec: str | Path, drives: Mapping[str, Drive] | None = None, base_dir: Path | None = None
-) -> Robot:
-    """:func:`vtm_pin.robot.load_robot`, once per robot and drives in this process.
-
-    The model is shared by the cases that use it; nothing in a run modifies it (a payload is
-    attached to a copy).
-    """
-    from .robot import load_robot
-
-    key = (str(spec), tuple(sorted((drives or {}).items())), str(base_dir))
-    robot = _ROBOTS.get(key)
-    if robot is None:
-        robot = _ROBOTS[key] = load_robot(spec, drives=drives, base_dir=base_dir)
-    return robot
+#: This process's robots: a worker loads each robot model once, not once per case.
+_ROBOTS = RobotCache()
 
 
 def run_case(task: CaseTask) -> dict[str, Any]:
@@ -170,7 +155,7 @@ def run_case(task: CaseTask) -> dict[str, Any]:
         raw = resolve_case(task.base, case.values)
         source = f"{task.source} (case {case.id})"
         scenario = build_scenario(
-            raw, source=source, base_dir=Path(task.base_dir), name=task.name, loader=_cached_robot
+            raw, source=source, base_dir=Path(task.base_dir), name=task.name, loader=_ROBOTS
         )
         built = time.perf_counter()
         output = run(scenario)
@@ -250,8 +235,11 @@ class CaseStore:
         """Where the case records are."""
         return self.folder / CASES_FOLDER
 
-    def open(self) -> None:
+    def open(self, wanted: set[str]) -> None:
         """Create the folder, or reopen it: refuse another study's results, load the records.
+
+        Args:
+            wanted: Ids of the study's cases; only their records are loaded.
 
         Raises:
             StudyError: The folder holds the results of another study, or of this study
@@ -274,7 +262,6 @@ class CaseStore:
             if not state_path.is_file():
                 state = {"study": self.study.source, "fingerprint": self.study.fingerprint}
                 _write_atomic(state_path, json.dumps(state, indent=2) + "\n")
-            wanted = {case.id for case in self.study.cases()}
             for path in self.cases_folder.glob("*.json"):
                 if path.stem in wanted:
                     self.records[path.stem] = json.loads(path.read_text())
@@ -354,9 +341,9 @@ def run_study(
     """
     out = Path(out)
     client = _connect(scheduler) if scheduler else None  # before anything is written
-    store = CaseStore(out, study)
-    store.open()
     cases = study.cases()
+    store = CaseStore(out, study)
+    store.open({case.id for case in cases})
     todo = [case for case in cases if case.id not in store.records]
     if progress is not None:
         progress(len(cases) - len(todo), len(cases))
