@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import heapq
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -166,6 +166,43 @@ class _Hybrid:
         self.lock(t, joints, LockKind.STICK)
 
 
+@dataclass(frozen=True)
+class SegmentRequest:
+    """What the hybrid loop asks an integrator for: one interval of one phase.
+
+    The hybrid loop (:func:`hybrid_run`) yields these and is sent back the
+    :class:`~vtm_pin.integrators.Segment`; :func:`simulate` answers each at once with the
+    scenario's integrator, the batched engine (:mod:`vtm_pin.batch`) answers many runs'
+    requests together.
+
+    Attributes:
+        phase: The phase (topology, modes, torques, state events).
+        rhs: Its right-hand side (with progress reporting if asked for).
+        t0: Start [s].
+        y0: Phase state at ``t0`` (:meth:`Phase.pack`).
+        t1: End [s]: the next time event or the run's end.
+        integrator: The integrator to use (dense output dropped when nothing moves).
+    """
+
+    phase: Phase
+    rhs: Rhs
+    t0: float
+    y0: np.ndarray
+    t1: float
+    integrator: Integrator
+
+    def integrate(self) -> Segment:
+        """The interval integrated by the scalar integrator."""
+        return self.integrator.integrate(
+            self.rhs,
+            self.t0,
+            self.y0,
+            self.t1,
+            [e.event for e in self.phase.events],
+            n_q=self.phase.k,
+        )
+
+
 def simulate(
     problem: Problem,
     integrator: Integrator,
@@ -194,6 +231,33 @@ def simulate(
 
     Raises:
         SimulationError: An unknown transition rule, or the state became non-finite.
+    """
+    run = hybrid_run(problem, integrator, transition=transition, progress=progress)
+    request = next(run)
+    while True:
+        try:
+            request = run.send(request.integrate())
+        except StopIteration as done:
+            result: SimulationResult = done.value
+            return result
+
+
+def hybrid_run(
+    problem: Problem,
+    integrator: Integrator,
+    *,
+    transition: str = "kkt",
+    progress: Callable[[float], None] | None = None,
+) -> Generator[SegmentRequest, Segment, SimulationResult]:
+    """The hybrid loop of :func:`simulate` as a generator of integration requests.
+
+    It yields a :class:`SegmentRequest` for every interval between events and must be sent
+    the integrated :class:`~vtm_pin.integrators.Segment`; it returns the result (as the
+    value of its ``StopIteration``). The wall time it reports includes the integration of
+    its intervals, whoever did it.
+
+    Raises:
+        SimulationError: As :func:`simulate`.
     """
     if transition not in TRANSITIONS:
         raise SimulationError(
@@ -225,13 +289,13 @@ def simulate(
             break
         t_end = min(queue[0].t, duration) if queue else duration
         phase = h.phase
-        segment = _sampling(integrator, phase).integrate(
+        segment = yield SegmentRequest(
+            phase,
             phase.rhs if progress is None else _reporting(phase.rhs, progress),
             t,
             phase.pack(h.q, h.v, h.extras),
             t_end,
-            [e.event for e in phase.events],
-            n_q=phase.k,
+            _sampling(integrator, phase),
         )
         rhs_evals += segment.rhs_evals
         steps += segment.steps
