@@ -285,6 +285,14 @@ def _study_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
         metavar="DIR",
         help="output folder (default: results/<study name>); reused to resume",
     )
+    study.add_argument(
+        "--engine",
+        choices=("batched", "scalar"),
+        default="batched",
+        help="batched (default): each worker advances many cases together, one Pinocchio call "
+        "per stage (cases it cannot take run on the scalar engine, counted in summary.json); "
+        "scalar: one case at a time",
+    )
     where = study.add_mutually_exclusive_group()
     where.add_argument(
         "--workers",
@@ -410,7 +418,12 @@ def _study(args: argparse.Namespace) -> int:
     begin = time.perf_counter()
     try:
         output = run_study(
-            study, out, workers=args.workers, scheduler=args.scheduler, progress=progress
+            study,
+            out,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            progress=progress,
+            engine=args.engine,
         )
     except KeyboardInterrupt:
         forget_interrupt()

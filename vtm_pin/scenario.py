@@ -966,13 +966,25 @@ def run_scenario(
             transition=transition or scenario.transition,
             progress=progress,
         )
-    except StepLimitError as exc:
-        raise ScenarioError(scenario.source, "integrator.max_steps", str(exc)) from exc
-    except ConstraintNotMet as exc:
+    except (StepLimitError, ConstraintNotMet, ConstraintError) as exc:
+        raise scenario_failure(scenario, exc) from exc
+
+
+def scenario_failure(scenario: Scenario, exc: Exception) -> Exception:
+    """The error to report for a run of ``scenario`` that ended with ``exc``.
+
+    A step limit, a frame constraint activated away from where it holds, or redundant frame
+    constraints become a :class:`ScenarioError` naming the key to change; anything else is
+    returned as it is.
+    """
+    if isinstance(exc, StepLimitError):
+        return ScenarioError(scenario.source, "integrator.max_steps", str(exc))
+    if isinstance(exc, ConstraintNotMet):
         key = scenario.constraint_keys.get(exc.name, "events")
-        raise ScenarioError(scenario.source, key, str(exc)) from exc
-    except ConstraintError as exc:  # redundant rows in the configuration reached
-        raise ScenarioError(scenario.source, "", str(exc)) from exc
+        return ScenarioError(scenario.source, key, str(exc))
+    if isinstance(exc, ConstraintError):  # redundant rows in the configuration reached
+        return ScenarioError(scenario.source, "", str(exc))
+    return exc
 
 
 def _check_joint(robot: Robot, joint: str, source: str, key: str) -> None:

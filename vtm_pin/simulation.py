@@ -431,7 +431,10 @@ class _Trace:
         mask = np.zeros(n, dtype=bool)
         mask[topology.free] = True
         hold = np.full((size, n), np.nan)
-        if holding and topology.locked:
+        if holding and topology.locked and segment.holding is not None:
+            locked = list(topology.locked)
+            hold[:, locked] = segment.holding[:, locked]
+        elif holding and topology.locked:
             locked = list(topology.locked)
             for r in range(size):
                 hold[r, locked] = phase.holding_torque(segment.t[r], segment.y[r])[locked]

@@ -39,6 +39,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from .batch import ENGINES
 from .exceptions import OutputError, StudyError, VtmError
 from .robot import RobotCache
 from .staging import write_staged
@@ -47,7 +48,7 @@ from .study import Case, Study
 if TYPE_CHECKING:
     import pandas as pd
 
-    from .pipeline import RunOutput
+    from .stopping import StoppingReport
 
 #: Files of a study's output folder.
 CASES_FOLDER, STATE_FILE = "cases", "study.json"
@@ -138,56 +139,108 @@ _ROBOTS = RobotCache()
 
 
 def run_case(task: CaseTask) -> dict[str, Any]:
-    """Run one case; returns its record (JSON-ready). Never raises for a failing case.
+    """Run one case with the scalar engine; its record (see :func:`run_cases`)."""
+    return run_cases([task], "scalar")[0]
 
-    The record holds the case id, index and values, ``status``, the metrics of
-    :data:`METRICS` and per joint (None where undefined), the scenario's assumptions, and the
-    timing split: ``build`` (scenario and model), ``simulate``, ``report`` [s].
+
+def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[str, Any]]:
+    """Run cases; returns their records (JSON-ready), in order. Never raises for a case.
+
+    A record holds the case id, index and values, ``status``, the metrics of
+    :data:`METRICS` and per joint (None where undefined), the scenario's assumptions, the
+    engine that ran it (and why not the batched one, if it was asked for), and the timing
+    split: ``build`` (scenario and model), ``simulate`` (with the batched engine, the case's
+    share of its batch), ``report`` [s].
+
+    Args:
+        tasks: The cases.
+        engine: ``batched`` (cases of one robot advance together, see
+            :mod:`vtm_pin.batch`) or ``scalar``.
     """
-    from .pipeline import run
-    from .scenario import build_scenario
+    from .batch import run_many
+    from .scenario import build_scenario, scenario_failure
     from .study import resolve_case
 
-    case = task.case
-    record: dict[str, Any] = {"case": case.id, "index": case.index, "values": dict(case.values)}
-    start = time.perf_counter()
-    try:
-        raw = resolve_case(task.base, case.values)
-        source = f"{task.source} (case {case.id})"
-        scenario = build_scenario(
-            raw, source=source, base_dir=Path(task.base_dir), name=task.name, loader=_ROBOTS
+    records: list[dict[str, Any]] = []
+    built: list[tuple[dict[str, Any], Any]] = []
+    for task in tasks:
+        case = task.case
+        record: dict[str, Any] = {"case": case.id, "index": case.index, "values": dict(case.values)}
+        records.append(record)
+        start = time.perf_counter()
+        try:
+            raw = resolve_case(task.base, case.values)
+            source = f"{task.source} (case {case.id})"
+            scenario = build_scenario(
+                raw, source=source, base_dir=Path(task.base_dir), name=task.name, loader=_ROBOTS
+            )
+            built.append((record, scenario))
+        except Exception as exc:
+            _record_error(record, exc)
+        record["timing"] = {"build": time.perf_counter() - start}
+    groups: dict[str, list[tuple[dict[str, Any], Any]]] = {}
+    for pair in built:
+        groups.setdefault(pair[1].transition, []).append(pair)
+    for transition, pairs in groups.items():
+        outcome = run_many(
+            [scenario.problem for _, scenario in pairs],
+            [scenario.integrator for _, scenario in pairs],
+            transition=transition,
+            engine=engine,
         )
-        built = time.perf_counter()
-        output = run(scenario)
-        status, metrics = case_metrics(output)
-        simulated = sum(r.wall_time for r in output.results.values())
+        for (record, scenario), result, used, reason in zip(
+            pairs, outcome.results, outcome.engines, outcome.fallbacks, strict=True
+        ):
+            record["engine"] = used
+            record["fallback"] = reason if engine == "batched" else None
+            _record_result(record, scenario, result, scenario_failure)
+    for record in records:
+        timing = record["timing"]
+        record["wall_time"] = sum(timing.values())
+    return records
+
+
+def _record_result(
+    record: dict[str, Any], scenario: Any, result: Any, failure: Callable[[Any, Any], Any]
+) -> None:
+    """Fill a case's record from its simulation (or the error that ended it)."""
+    from .stopping import compute_stopping_report
+
+    begin = time.perf_counter()
+    try:
+        if isinstance(result, Exception):
+            raise failure(scenario, result)
+        if scenario.stop is None:
+            raise StudyError(scenario.source, "stop", "a study case needs a stop to measure")
+        report = compute_stopping_report(
+            scenario.robot, result, scenario.brakes, scenario.tool_frame
+        )
+        status, metrics = case_metrics(scenario, report)
         record.update(status=status, metrics=metrics)
-        record["assumptions"] = list(output.summary.get("assumptions", []))
+        record["assumptions"] = list(scenario.robot.assumptions) + list(scenario.assumptions)
         record["tool_frame"] = scenario.tool_frame
-        record["timing"] = {
-            "build": built - start,
-            "simulate": simulated,
-            "report": time.perf_counter() - built - simulated,
-        }
-    except VtmError as exc:
-        record.update(status=f"error: {_one_line(str(exc))}", metrics={})
-    except Exception as exc:  # a bug: recorded like a failure, so the study goes on
+        record["timing"]["simulate"] = float(result.wall_time)
+    except Exception as exc:
+        _record_error(record, exc)
+    record["timing"]["report"] = time.perf_counter() - begin
+
+
+def _record_error(record: dict[str, Any], exc: Exception) -> None:
+    """A failed case: its one-line message (an internal error says so)."""
+    if isinstance(exc, VtmError):
+        message = str(exc)
+    else:  # a bug: recorded like a failure, so the study goes on
         message = f"internal error ({type(exc).__name__}: {exc})"
-        record.update(status=f"error: {_one_line(message)}", metrics={})
-    record["wall_time"] = time.perf_counter() - start
-    return record
+    record.update(status=f"error: {_one_line(message)}", metrics={})
 
 
-def case_metrics(output: RunOutput) -> tuple[str, dict[str, float | None]]:
+def case_metrics(scenario: Any, report: StoppingReport) -> tuple[str, dict[str, float | None]]:
     """A run's status (``ok`` / ``not_stopped``) and metrics (see :data:`DEFINITIONS`).
 
-    Raises:
-        StudyError: The scenario has no stop, so there is nothing to measure.
+    Args:
+        scenario: The case's scenario.
+        report: The stopping report of its run.
     """
-    scenario = output.scenario
-    if not output.stopping:
-        raise StudyError(scenario.source, "stop", "a study case needs a stop to measure")
-    report = output.stopping[output.rule]
     joints = [j.joint for j in report.joints]
     angles = [abs(j.stop_angle) for j in report.joints]
     state = scenario.test_state
@@ -320,6 +373,7 @@ def run_study(
     workers: int | None = None,
     scheduler: str | None = None,
     progress: Callable[[int, int], None] | None = None,
+    engine: str = "batched",
 ) -> StudyOutput:
     """Run the cases of ``study`` not yet stored in ``out``, then write its results there.
 
@@ -330,16 +384,26 @@ def run_study(
         scheduler: Address of a Dask scheduler (``tcp://host:port``) to send the cases to.
         progress: Called with (cases done, cases in all) after each case, and once at the
             start with the cases already stored.
+        engine: ``batched``: each worker advances its cases together, up to
+            :data:`BATCH_CASES` at a time (:mod:`vtm_pin.batch`; cases it cannot take run
+            on the scalar engine, counted in the summary); ``scalar``: one case at a time.
 
     Returns:
         The table, summary and files written.
 
     Raises:
-        StudyError: ``out`` holds another study's results, or the scheduler cannot be used.
+        StudyError: ``out`` holds another study's results, the scheduler cannot be used,
+            or the engine is unknown.
         OutputError: ``out`` cannot be written.
         KeyboardInterrupt: Interrupted; the cases finished so far are stored.
     """
     out = Path(out)
+    if engine not in ENGINES:
+        raise StudyError(
+            "command line",
+            "--engine",
+            f"'{engine}' is not an engine; allowed: {', '.join(ENGINES)}",
+        )
     client = _connect(scheduler) if scheduler else None  # before anything is written
     cases = study.cases()
     store = CaseStore(out, study)
@@ -353,7 +417,7 @@ def run_study(
         for case in todo
     ]
     begin_cases = time.perf_counter()
-    for record in _execute(tasks, workers or default_workers(), client):
+    for record in _execute(tasks, workers or default_workers(), client, engine):
         begin = time.perf_counter()
         store.save(record)
         record.setdefault("timing", {})["write"] = time.perf_counter() - begin  # this run's
@@ -364,7 +428,7 @@ def run_study(
     count = workers or default_workers()
     executor = f"dask {scheduler}" if scheduler else f"{count} worker{'s' if count > 1 else ''}"
     begin_outputs = time.perf_counter()
-    output = _finish(study, out, records, executor, len(tasks))
+    output = _finish(study, out, records, f"{executor}, {engine} engine", len(tasks))
     phases = {"cases": begin_outputs - begin_cases, "outputs": time.perf_counter() - begin_outputs}
     return dataclasses.replace(output, phases=phases)
 
@@ -381,20 +445,33 @@ def _refuse_all_failed(study: Study, records: Sequence[Mapping[str, Any]]) -> No
         )
 
 
-def _execute(tasks: Sequence[CaseTask], workers: int, client: Any | None) -> Iterator[dict]:
-    """Run the tasks; yields each record as soon as its case is done (in any order)."""
+#: Most cases a worker advances together with the batched engine (memory: about 40 kB each).
+BATCH_CASES = 2500
+
+
+def _chunks(tasks: Sequence[CaseTask], workers: int, engine: str) -> list[list[CaseTask]]:
+    """The tasks in the pieces a worker runs at once: single cases, or batches."""
+    size = 1 if engine == "scalar" else min(BATCH_CASES, math.ceil(len(tasks) / workers))
+    return [list(tasks[i : i + size]) for i in range(0, len(tasks), size)]
+
+
+def _execute(
+    tasks: Sequence[CaseTask], workers: int, client: Any | None, engine: str
+) -> Iterator[dict]:
+    """Run the tasks; yields each record as soon as its piece is done (in any order)."""
     if not tasks:
         if client is not None:
             client.close()
         return iter(())
     if client is not None:
-        return _on_dask(tasks, client)
-    if workers <= 1 or len(tasks) == 1:
-        return (run_case(task) for task in tasks)
-    return _on_pool(tasks, min(workers, len(tasks)))
+        return _on_dask(_chunks(tasks, 4 * _dask_workers(client), engine), client, engine)
+    chunks = _chunks(tasks, workers, engine)
+    if workers <= 1 or len(chunks) == 1:
+        return (record for chunk in chunks for record in run_cases(chunk, engine))
+    return _on_pool(chunks, min(workers, len(chunks)), engine)
 
 
-def _on_pool(tasks: Sequence[CaseTask], workers: int) -> Iterator[dict]:
+def _on_pool(chunks: Sequence[list[CaseTask]], workers: int, engine: str) -> Iterator[dict]:
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
     if "forkserver" in methods:
@@ -411,25 +488,28 @@ def _on_pool(tasks: Sequence[CaseTask], workers: int) -> Iterator[dict]:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
-    return _drain(executor, tasks, workers)
+    return _drain(executor, chunks, workers, engine)
 
 
 def _drain(
-    executor: ProcessPoolExecutor, tasks: Sequence[CaseTask], workers: int
+    executor: ProcessPoolExecutor,
+    chunks: Sequence[list[CaseTask]],
+    workers: int,
+    engine: str,
 ) -> Iterator[dict]:
-    """Keep the pool fed with a few tasks per worker; yield records as they complete."""
-    pending: set[Future[dict]] = set()
-    queue = iter(tasks)
+    """Keep the pool fed with a few pieces per worker; yield records as they complete."""
+    pending: set[Future[list[dict]]] = set()
+    queue = iter(chunks)
     try:
-        for task in queue:
-            pending.add(executor.submit(run_case, task))
+        for chunk in queue:
+            pending.add(executor.submit(run_cases, chunk, engine))
             if len(pending) >= 4 * workers:
                 break
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
                 try:
-                    record = future.result()
+                    records = future.result()
                 except BrokenProcessPool as exc:
                     raise StudyError(
                         "",
@@ -437,10 +517,10 @@ def _drain(
                         "a worker process died (out of memory, or killed); the finished cases "
                         "are stored: run the same command again to continue",
                     ) from exc
-                yield record
+                yield from records
                 more = next(queue, None)
                 if more is not None:
-                    pending.add(executor.submit(run_case, more))
+                    pending.add(executor.submit(run_cases, more, engine))
     finally:
         executor.shutdown(wait=False, cancel_futures=True)
 
@@ -503,13 +583,18 @@ def _connect(scheduler: str) -> Any:
         ) from exc
 
 
-def _on_dask(tasks: Sequence[CaseTask], client: Any) -> Iterator[dict]:
+def _dask_workers(client: Any) -> int:
+    """Worker processes of the cluster (at least 1)."""
+    return max(1, len(client.scheduler_info().get("workers", {})))
+
+
+def _on_dask(chunks: Sequence[list[CaseTask]], client: Any, engine: str) -> Iterator[dict]:
     from dask.distributed import as_completed
 
     try:
-        futures = client.map(run_case, list(tasks), pure=False)
+        futures = client.map(run_cases, list(chunks), engine=engine, pure=False)
         for future in as_completed(futures, loop=client.loop):
-            yield future.result()
+            yield from future.result()
     finally:
         client.close()
 
@@ -604,6 +689,7 @@ def build_study_summary(
         },
         "counts": counts,
         "executor": executor,
+        "engines": _engine_counts(records),
         "versions": _versions(),
         "assumptions": _common_assumptions(records),
         "axes": {name: _axis_text(name) for name in study.axes},
@@ -611,6 +697,20 @@ def build_study_summary(
         "units": {**METRICS, "wall_time": "s"},
         "timing_median": split,
         "wall_time_total": sum(float(r["wall_time"]) for r in records),
+    }
+
+
+def _engine_counts(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """How many cases each engine ran, and why the batched engine left cases to the scalar."""
+    engines = [str(r.get("engine", "")) for r in records if r.get("engine")]
+    reasons: dict[str, int] = {}
+    for record in records:
+        if record.get("fallback"):
+            reasons[str(record["fallback"])] = reasons.get(str(record["fallback"]), 0) + 1
+    return {
+        "batched": engines.count("batched"),
+        "scalar": engines.count("scalar"),
+        "fallbacks": dict(sorted(reasons.items())),
     }
 
 

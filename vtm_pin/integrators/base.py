@@ -70,6 +70,9 @@ class Segment:
         event: Index of the state event that ended the segment, or None.
         n_steps: Accepted steps, when the samples are not the steps; None: one per sample
             after the first.
+        holding: Holding torques of the locked joints at the samples [N m], shape
+            (k, n), when the integrator computed them on the way (the batched engine);
+            None: the hybrid loop computes them.
     """
 
     t: np.ndarray
@@ -77,6 +80,7 @@ class Segment:
     rhs_evals: int
     event: int | None = None
     n_steps: int | None = None
+    holding: np.ndarray | None = None
 
     @property
     def steps(self) -> int:

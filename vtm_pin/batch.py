@@ -1,0 +1,882 @@
+r"""The batched engine: many runs of one robot advanced together, dynamics in one call per stage.
+
+Every run keeps its own hybrid loop (:func:`vtm_pin.simulation.hybrid_run`: time events,
+brake decisions, locks and their jumps, results), and so its own time, step size and events.
+Only the integration between events is shared: the intervals that the runs ask for are stepped
+together by one vectorised Dormand-Prince 8(5,3), the same method, step control, event
+location and dense output as :class:`~vtm_pin.integrators.DOP853`, so a run's steps are the
+scalar engine's up to round-off. Each Runge-Kutta stage evaluates the dynamics of every run
+of one model in one ``pinocchio.abaInParallel`` call.
+
+A run whose phase has joints locked is not given a reduced model (that would be one model per
+run and per lock angle). Its free accelerations come from the full model instead, corrected
+by a Schur complement: with L the locked joints and a0 = ABA(q, v, tau) (v_L = 0),
+
+.. math:: (M^{-1})_{LL}\, \lambda = -a_{0,L}, \qquad a = a_0 + M^{-1} E_L \lambda,
+
+where the columns M^-1 e_i come from further batched ABA passes on the model without gravity
+at zero velocity with tau = e_i. The multipliers lambda are the locks' holding torques, which
+the brakes' slip events and the results need.
+
+What the batched engine steps: intervals without frame constraints or acting drives, with
+Coulomb brakes (and ideal locks, which are transitions, not dynamics), integrated by dop853.
+A run that needs anything else (see :func:`fallback_reason`) is run by the scalar engine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Generator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .brakes import BrakeMode, StateEventKind
+from .exceptions import SimulationError, StepLimitError, VtmError
+from .friction import Coulomb
+from .integrators import DOP853, Segment
+from .integrators import dop853_coefficients as coef
+from .integrators.dop853 import _Grid
+from .integrators.fixed_step import locate
+from .problem import Problem
+from .results import SimulationResult
+from .simulation import SegmentRequest, hybrid_run
+from .transitions.recursive import weightless
+
+ENGINES = ("batched", "scalar")
+
+_S = coef.N_STAGES
+_A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
+_A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
+_N_EXTRA = _A_EXTRA.shape[0]
+_SAFETY, _MIN_FACTOR, _MAX_FACTOR, _EXPONENT = 0.9, 0.2, 10.0, -1.0 / 8.0
+_ROUNDOFF = 1e-9  # vtm_pin.brakes.ROUNDOFF: the slip test's own round-off
+
+
+def fallback_reason(problem: Problem, integrator: object) -> str | None:
+    """Why a run cannot go through the batched engine; None if it can.
+
+    Args:
+        problem: The run.
+        integrator: Its integrator.
+    """
+    if not isinstance(integrator, DOP853):
+        name = getattr(integrator, "name", type(integrator).__name__)
+        return f"integrator {name} (the batched engine steps dop853 only)"
+    if problem.constraints or any(e.activate for e in problem.events):
+        return "frame constraints"
+    stop = problem.stop
+    if stop is not None and stop.category != 0:
+        return "category-1 stop (drives ramp the rates down)"
+    if stop is not None and stop.t > 0.0:
+        return "drives act before the stop signal (stop.t > 0)"
+    for brake in problem.brakes:
+        if not brake.ideal and not isinstance(brake.friction, Coulomb):
+            return f"{brake.friction.name} brake friction (the batched engine has Coulomb)"
+    return None
+
+
+def model_key(model: pin.Model) -> bytes:
+    """Bytes equal for two models with the same dynamics (inertias, placements, armature)."""
+    parts = [np.asarray(model.gravity.vector), np.asarray(model.armature)]
+    for joint, placement, inertia in zip(
+        model.joints, model.jointPlacements, model.inertias, strict=True
+    ):
+        parts.append(np.array([joint.idx_v, joint.nv], dtype=float))
+        parts.append(placement.homogeneous.ravel())
+        parts.append(inertia.toDynamicParameters())
+    return b"".join(np.ascontiguousarray(p, dtype=float).tobytes() for p in parts) + b"".join(
+        joint.shortname().encode() for joint in model.joints
+    )
+
+
+class _Dynamics:
+    """Batched dynamics of one model: ABA with locks by a Schur complement, holding torques.
+
+    Args:
+        model: The full model (armature included).
+        threads: Threads of Pinocchio's parallel algorithms.
+    """
+
+    def __init__(self, model: pin.Model, threads: int) -> None:
+        self.n = model.nv
+        self.threads = threads
+        self.pool = pin.ModelPool(model, threads)
+        self.weightless = pin.ModelPool(weightless(model), threads)
+        self.aba_calls = 0
+        self.aba_states = 0
+
+    def _aba(
+        self, pool: pin.ModelPool, q: np.ndarray, v: np.ndarray, tau: np.ndarray
+    ) -> np.ndarray:
+        self.aba_calls += 1
+        self.aba_states += len(q)
+        a = pin.abaInParallel(self.threads, pool, q.T, v.T, tau.T)
+        return np.asarray(a).reshape(self.n, len(q)).T
+
+    def accelerations(
+        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, locked: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Accelerations [rad/s^2] (0 at locked joints) and holding torques [N m] (0 at free).
+
+        Args:
+            q: Configurations, shape (B, n).
+            v: Rates, shape (B, n), exactly 0 at locked joints.
+            tau: Applied torques, shape (B, n), 0 at locked joints.
+            locked: Lock masks, shape (B, n).
+        """
+        a = self._aba(self.pool, q, v, tau)
+        lam = np.zeros_like(a)
+        rows = np.flatnonzero(locked.any(axis=1))
+        if rows.size == 0:
+            return a, lam
+        n = self.n
+        mask = locked[rows]
+        columns = np.zeros((rows.size, n, n))  # columns[b, :, i] = M^-1 e_i where i is locked
+        zero = np.zeros((rows.size, n))
+        for i in np.flatnonzero(mask.any(axis=0)):
+            sub = np.flatnonzero(mask[:, i])
+            unit = zero[sub].copy()
+            unit[:, i] = 1.0
+            columns[sub, :, i] = self._aba(self.weightless, q[rows[sub]], zero[sub], unit)
+        both = mask[:, :, None] & mask[:, None, :]
+        schur = np.where(both, columns, 0.0) + np.where(mask, 0.0, 1.0)[:, :, None] * np.eye(n)
+        a0 = a[rows]
+        lam_rows = np.linalg.solve(schur, np.where(mask, -a0, 0.0)[:, :, None])[:, :, 0]
+        a_rows = a0 + np.einsum("bij,bj->bi", columns, lam_rows)
+        a_rows[mask] = 0.0
+        a[rows] = a_rows
+        lam[rows] = lam_rows
+        return a, lam
+
+
+@dataclass
+class _Lanes:
+    """The runs' current intervals, one row (lane) per run, in the padded state layout.
+
+    The padded state of a run with n joints is (q, v, W_brake, W_drive, P_brake), 3n + 2
+    values; a locked joint keeps its q and v = 0 with zero rates. Which entries are the
+    interval's own (the scalar engine's y) is ``active``; the error norms use those only.
+    """
+
+    n: int
+    size: int
+
+    def __post_init__(self) -> None:
+        n, b, ny = self.n, self.size, 3 * self.n + 2
+        self.ny = ny
+        self.y = np.zeros((b, ny))
+        self.fy = np.zeros((b, ny))
+        self.lam = np.zeros((b, n))
+        self.t = np.zeros(b)
+        self.t1 = np.zeros(b)
+        self.h = np.zeros(b)
+        self.rejected = np.zeros(b, dtype=bool)
+        self.locked = np.zeros((b, n), dtype=bool)
+        self.sign = np.zeros((b, n))
+        self.kinetic = np.zeros((b, n))  # joint side: ratio x sliding torque [N m]
+        self.ratio = np.ones((b, n))
+        self.torque = np.zeros((b, n))  # motor side sliding torque [N m]
+        self.breakaway = np.zeros((b, n))  # motor side static torque [N m]
+        self.ramp = np.zeros((b, n))
+        self.engaged = np.zeros((b, n))
+        self.event_kind = np.zeros((b, n), dtype=np.int8)  # 0 none, 1 rest, 2 slip
+        self.event_dir = np.zeros((b, n))
+        self.event_index = np.zeros((b, n), dtype=int)
+        self.g_prev = np.zeros((b, n))
+        self.active = np.zeros((b, ny), dtype=bool)
+        self.count = np.ones(b)
+        self.steps = np.zeros(b, dtype=int)
+        self.accepted = np.zeros(b, dtype=int)
+        self.evals = np.zeros(b, dtype=int)
+        self.running = np.zeros(b, dtype=bool)
+
+
+class _Run:
+    """One run's hybrid loop and the interval it is waiting for."""
+
+    def __init__(self, index: int, problem: Problem, integrator: DOP853, transition: str) -> None:
+        self.index = index
+        self.loop: Generator[SegmentRequest, Segment, SimulationResult] = hybrid_run(
+            problem, integrator, transition=transition
+        )
+        self.request: SegmentRequest | None = None
+        self.outcome: SimulationResult | VtmError | None = None
+        self.grid: _Grid | None = None
+        self.ts: list[np.ndarray] = []
+        self.ys: list[np.ndarray] = []
+        self.holds: list[np.ndarray] = []
+        self.reduced = np.zeros(0, dtype=int)
+
+    def advance(self, segment: Segment | None = None, error: VtmError | None = None) -> None:
+        """Send the loop its segment (or error); keep its next request or its outcome."""
+        try:
+            if error is not None:
+                self.request = self.loop.throw(error)
+            elif segment is None:
+                self.request = next(self.loop)
+            else:
+                self.request = self.loop.send(segment)
+        except StopIteration as done:
+            self.request, self.outcome = None, done.value
+        except VtmError as exc:
+            self.request, self.outcome = None, exc
+        except Exception as exc:  # a bug: this run fails with it, the others go on
+            message = f"internal error ({type(exc).__name__}: {exc})"
+            self.request, self.outcome = None, SimulationError(message)
+
+
+class BatchEngine:
+    """Runs of one model stepped together (see the module docstring).
+
+    Args:
+        model: The runs' full model (all runs share its dynamics: :func:`model_key`).
+        integrator: The dop853 settings every run uses.
+        threads: Threads of Pinocchio's parallel algorithms.
+    """
+
+    def __init__(self, model: pin.Model, integrator: DOP853, threads: int = 1) -> None:
+        self.dynamics = _Dynamics(model, threads)
+        self.integrator = integrator
+        self.n = model.nv
+        self.seconds = {"dynamics": 0.0, "events": 0.0}
+
+    # The right-hand side of every lane in ``rows`` at times t and padded states y.
+
+    def rhs(
+        self, lanes: _Lanes, rows: np.ndarray, t: np.ndarray, y: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """dy/dt (padded) and holding torques [N m] of lanes ``rows`` at (t, y)."""
+        n = self.n
+        start = time.perf_counter()
+        q, v = y[:, :n], y[:, n : 2 * n]
+        elapsed = t[:, None] - lanes.engaged[rows]
+        ramp = lanes.ramp[rows]
+        factor = np.where(
+            ramp == 0.0, 1.0, np.clip(elapsed / np.where(ramp == 0.0, 1.0, ramp), 0.0, 1.0)
+        )
+        tau = -lanes.sign[rows] * (lanes.ratio[rows] * (factor * lanes.torque[rows]))
+        a, lam = self.dynamics.accelerations(q, v, tau, lanes.locked[rows])
+        out = np.zeros_like(y)
+        out[:, :n] = v
+        out[:, n : 2 * n] = a
+        out[:, 2 * n] = -np.einsum("bi,bi->b", tau, v)
+        out[:, 2 * n + 2 :] = tau
+        self.seconds["dynamics"] += time.perf_counter() - start
+        return out, lam
+
+    def run(self, runs: Sequence[_Run]) -> None:
+        """Drive ``runs`` (each already started: waiting with a request) to their outcomes."""
+        lanes = _Lanes(self.n, len(runs))
+        waiting = list(range(len(runs)))
+        while True:
+            self._start(lanes, runs, waiting)
+            rows = np.flatnonzero(lanes.running)
+            if rows.size == 0:
+                return
+            waiting = self._round(lanes, runs, rows)
+
+    # Starting intervals.
+
+    def _start(self, lanes: _Lanes, runs: Sequence[_Run], waiting: list[int]) -> None:
+        """Give every waiting run's request a lane (or answer it at once), then first steps."""
+        fresh: list[int] = []
+        while waiting:
+            again = []
+            for b in waiting:
+                run = runs[b]
+                if run.request is None:
+                    continue
+                request = run.request
+                if request.phase.k == 0 or request.t1 <= request.t0:  # the scalar is instant
+                    run.advance(run.request.integrate())
+                    again.append(b)
+                    continue
+                self._load(lanes, b, run)
+                fresh.append(b)
+            waiting = again
+        if not fresh:
+            return
+        rows = np.array(fresh)
+        fy, lam = self.rhs(lanes, rows, lanes.t[rows], lanes.y[rows])
+        lanes.fy[rows], lanes.lam[rows] = fy, lam
+        lanes.h[rows] = self._first_step(lanes, rows)
+        lanes.evals[rows] = 2
+        lanes.g_prev[rows] = self._g(lanes, rows, lanes.t[rows], lanes.y[rows], lam)
+        for b in fresh:  # the interval's first sample
+            runs[b].ts.append(lanes.t[b : b + 1].copy())
+            runs[b].ys.append(lanes.y[b : b + 1].copy())
+            runs[b].holds.append(lanes.lam[b : b + 1].copy())
+
+    def _load(self, lanes: _Lanes, b: int, run: _Run) -> None:
+        """Write run ``b``'s request into its lane."""
+        request = run.request
+        assert request is not None
+        phase = request.phase
+        n, k = self.n, phase.k
+        topology = phase.topology
+        free = topology.free
+        locked = np.array(topology.locked, dtype=int)
+        y = np.zeros(3 * n + 2)
+        y[free] = request.y0[:k]
+        y[locked] = topology.q_locked
+        y[n + free] = request.y0[k : 2 * k]
+        extras = np.arange(2 * n, 3 * n + 2)
+        reduced = [free, n + free] if phase.passive else [free, n + free, extras]
+        if not phase.passive:
+            y[extras] = request.y0[2 * k :]
+        run.reduced = np.concatenate(reduced)
+        lanes.y[b] = y
+        lanes.t[b], lanes.t1[b] = request.t0, request.t1
+        lanes.rejected[b] = False
+        lanes.locked[b] = False
+        lanes.locked[b, locked] = True
+        lanes.active[b] = False
+        lanes.active[b, run.reduced] = True
+        lanes.count[b] = run.reduced.size
+        lanes.steps[b] = lanes.accepted[b] = 0
+        self._load_brakes(lanes, b, phase)
+        lanes.running[b] = True
+        run.grid = (
+            None
+            if request.integrator.output_dt is None  # type: ignore[attr-defined]
+            else _Grid(request.integrator.output_dt, request.t0, request.t1)  # type: ignore[attr-defined]
+        )
+        run.ts, run.ys, run.holds = [], [], []
+
+    def _load_brakes(self, lanes: _Lanes, b: int, phase: object) -> None:
+        """Sliding signs, torques, ramps and the state events of run ``b``'s phase."""
+        lanes.sign[b] = 0.0
+        lanes.event_kind[b] = 0
+        machine = phase.machine  # type: ignore[attr-defined]
+        if machine is None:
+            return
+        modes, engaged = phase.modes, phase.engaged  # type: ignore[attr-defined]
+        for j, brake in machine.brakes.items():
+            lanes.ratio[b, j] = machine.ratio[j]
+            lanes.engaged[b, j] = engaged.get(j, 0.0)
+            if not brake.ideal:
+                lanes.torque[b, j] = brake.friction.sliding_torque
+                lanes.breakaway[b, j] = brake.friction.breakaway_torque
+                lanes.ramp[b, j] = brake.friction.ramp
+            if modes[j].sliding and not lanes.locked[b, j]:
+                lanes.sign[b, j] = modes[j].sign
+        for index, event in enumerate(phase.events):  # type: ignore[attr-defined]
+            j = event.joint
+            lanes.event_index[b, j] = index
+            lanes.event_dir[b, j] = event.event.direction
+            rest = event.kind is StateEventKind.ZERO_VELOCITY
+            lanes.event_kind[b, j] = 1 if rest else 2
+            if not rest:
+                assert modes[j] is BrakeMode.STUCK
+
+    def _first_step(self, lanes: _Lanes, rows: np.ndarray) -> np.ndarray:
+        """Hairer's initial step guess per lane, as DOP853's (one more evaluation)."""
+        it = self.integrator
+        y, fy, active = lanes.y[rows], lanes.fy[rows], lanes.active[rows]
+        span = lanes.t1[rows] - lanes.t[rows]
+        scale = it.atol + it.rtol * np.abs(y)
+        d0 = _rms(y / scale, active)
+        d1 = _rms(fy / scale, active)
+        h0 = np.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / np.where(d1 == 0, 1, d1))
+        h0 = np.minimum(h0, span)
+        f1, _ = self.rhs(lanes, rows, lanes.t[rows] + h0, y + h0[:, None] * fy)
+        d2 = _rms((f1 - fy) / scale, active) / h0
+        small = (d1 <= 1e-15) & (d2 <= 1e-15)
+        with np.errstate(divide="ignore"):
+            h1 = np.where(
+                small, np.maximum(1e-6, h0 * 1e-3), (0.01 / np.maximum(d1, d2)) ** (1.0 / 8.0)
+            )
+        return np.minimum(np.minimum(np.minimum(100.0 * h0, h1), span), it.max_step)
+
+    def _g(
+        self, lanes: _Lanes, rows: np.ndarray, t: np.ndarray, y: np.ndarray, lam: np.ndarray
+    ) -> np.ndarray:
+        """The state-event functions of lanes ``rows`` (NaN where a joint has none)."""
+        n = self.n
+        kind = lanes.event_kind[rows]
+        elapsed = t[:, None] - lanes.engaged[rows]
+        ramp = lanes.ramp[rows]
+        factor = np.where(
+            ramp == 0.0, 1.0, np.clip(elapsed / np.where(ramp == 0.0, 1.0, ramp), 0.0, 1.0)
+        )
+        static = lanes.ratio[rows] * (factor * lanes.breakaway[rows])
+        scale = np.maximum(1.0, np.max(np.abs(lam), axis=1))
+        margin = static + _ROUNDOFF * scale[:, None] - np.abs(lam)
+        g = np.where(kind == 1, y[:, n : 2 * n], margin)
+        return np.where(kind == 0, np.nan, g)
+
+    # One step attempt of every running lane.
+
+    def _stages(
+        self, lanes: _Lanes, rows: np.ndarray, h: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The 12 stages: K, y_new, f_new, holding torques at y_new."""
+        t, y = lanes.t[rows], lanes.y[rows]
+        K = np.empty((_S + 1 + _N_EXTRA, rows.size, lanes.ny))
+        K[0] = lanes.fy[rows]
+        for s in range(1, _S):
+            dy = np.tensordot(_A[s, :s], K[:s], axes=(0, 0))
+            K[s], _ = self.rhs(lanes, rows, t + _C[s] * h, y + h[:, None] * dy)
+        y_new = y + h[:, None] * np.tensordot(_B, K[:_S], axes=(0, 0))
+        f_new, lam = self.rhs(lanes, rows, t + h, y_new)
+        K[_S] = f_new
+        return K, y_new, f_new, lam
+
+    def _error(
+        self, lanes: _Lanes, rows: np.ndarray, K: np.ndarray, y_new: np.ndarray, h: np.ndarray
+    ) -> np.ndarray:
+        """DOP853's scaled error norm per lane, over the interval's own entries."""
+        it = self.integrator
+        y, active = lanes.y[rows], lanes.active[rows]
+        scale = it.atol + it.rtol * np.maximum(np.abs(y), np.abs(y_new))
+        err5 = np.where(active, np.tensordot(coef.E5, K[: _S + 1], axes=(0, 0)) / scale, 0.0)
+        err3 = np.where(active, np.tensordot(coef.E3, K[: _S + 1], axes=(0, 0)) / scale, 0.0)
+        e5 = np.einsum("bi,bi->b", err5, err5)
+        e3 = np.einsum("bi,bi->b", err3, err3)
+        both = (e5 == 0.0) & (e3 == 0.0)
+        denominator = np.sqrt(np.where(both, 1.0, (e5 + 0.01 * e3) * lanes.count[rows]))
+        return np.where(both, 0.0, np.abs(h) * e5 / denominator)
+
+    def _round(self, lanes: _Lanes, runs: Sequence[_Run], rows: np.ndarray) -> list[int]:
+        """One step attempt of every running lane; returns the runs whose interval ended."""
+        it = self.integrator
+        lanes.steps[rows] += 1
+        finished: list[int] = []
+        over = rows[lanes.steps[rows] > it.max_steps]
+        for b in over:
+            self._fail(lanes, runs, b, self._step_limit(lanes, b), finished)
+        rows = rows[lanes.steps[rows] <= it.max_steps]
+        t, t1 = lanes.t[rows], lanes.t1[rows]
+        h = np.minimum(lanes.h[rows], it.max_step)
+        last = t + h >= t1 - 1e-14 * np.maximum(1.0, np.abs(t1))
+        h = np.where(last, t1 - t, h)
+        K, y_new, f_new, lam_new = self._stages(lanes, rows, h)
+        lanes.evals[rows] += _S
+        err = self._error(lanes, rows, K, y_new, h)
+        bad = ~(err <= 1.0)
+        if bad.any():
+            self._reject(lanes, runs, rows[bad], h[bad], err[bad], finished)
+        good = ~bad
+        if good.any():
+            self._accept(
+                lanes,
+                runs,
+                rows[good],
+                _Step(h[good], last[good], err[good], K[:, good], y_new[good], f_new[good]),
+                lam_new[good],
+                finished,
+            )
+        return finished
+
+    def _reject(
+        self,
+        lanes: _Lanes,
+        runs: Sequence[_Run],
+        rows: np.ndarray,
+        h: np.ndarray,
+        err: np.ndarray,
+        finished: list[int],
+    ) -> None:
+        """Shrink rejected lanes' steps; a step below the round-off of t fails the run."""
+        finite = np.isfinite(err)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            factor = np.where(
+                finite, np.maximum(_MIN_FACTOR, _SAFETY * err**_EXPONENT), _MIN_FACTOR
+            )
+        h = h * factor
+        lanes.h[rows] = h
+        lanes.rejected[rows] = True
+        t = lanes.t[rows]
+        tiny = h < 10.0 * np.abs(np.nextafter(t, math.inf) - t)
+        for b, hb in zip(rows[tiny], h[tiny], strict=True):
+            it = self.integrator
+            finite_f = bool(np.all(np.isfinite(lanes.fy[b])))
+            reason = (
+                "the derivatives are not finite there"
+                if not finite_f
+                else f"rtol = {it.rtol:g}, atol = {it.atol:g} cannot be met there"
+            )
+            error = SimulationError(
+                f"dop853: the step fell to {hb:.3g} s at t = {lanes.t[b]:.6g} s, below the "
+                f"round-off of t; {reason} (a singular or extremely stiff motion)"
+            )
+            self._fail(lanes, runs, int(b), error, finished)
+
+    def _accept(
+        self,
+        lanes: _Lanes,
+        runs: Sequence[_Run],
+        rows: np.ndarray,
+        step: _Step,
+        lam_new: np.ndarray,
+        finished: list[int],
+    ) -> None:
+        """Accepted steps: events, dense output, the next step size, ended intervals."""
+        lanes.accepted[rows] += 1
+        t = lanes.t[rows]
+        t_new = np.where(step.last, lanes.t1[rows], t + step.h)
+        g_new = self._g(lanes, rows, t_new, step.y_new, lam_new)
+        fired = _crossed(lanes.g_prev[rows], g_new, lanes.event_dir[rows])
+        fired &= lanes.event_kind[rows] != 0
+        events: np.ndarray = np.asarray(fired.any(axis=1))
+        due = np.array(
+            [
+                not event and _due(runs[b].grid, tn)
+                for b, tn, event in zip(rows, t_new, events.tolist(), strict=True)
+            ],
+            dtype=bool,
+        )
+        if events.any() or due.any():
+            begin = time.perf_counter()
+            self._dense_samples(lanes, runs, rows, step, t_new, fired, events | due)
+            self.seconds["events"] += time.perf_counter() - begin
+        for b in rows[events]:
+            lanes.running[b] = False
+            finished.append(int(b))
+        go = ~events
+        rows, step, t_new = rows[go], step.select(go), t_new[go]
+        lanes.g_prev[rows] = g_new[go]
+        err = step.err
+        with np.errstate(divide="ignore"):
+            factor = np.where(
+                err == 0.0, _MAX_FACTOR, np.minimum(_MAX_FACTOR, _SAFETY * err**_EXPONENT)
+            )
+        factor = np.where(lanes.rejected[rows], np.minimum(1.0, factor), factor)
+        lanes.rejected[rows] = False
+        lanes.t[rows], lanes.y[rows], lanes.fy[rows] = t_new, step.y_new, step.f_new
+        lanes.lam[rows] = lam_new[go]
+        lanes.h[rows] = step.h * factor
+        gridless = np.array([runs[b].grid is None for b in rows], dtype=bool)
+        for i in np.flatnonzero(step.last | gridless):
+            b = int(rows[i])
+            run = runs[b]
+            run.ts.append(lanes.t[b : b + 1].copy())
+            run.ys.append(lanes.y[b : b + 1].copy())
+            run.holds.append(lanes.lam[b : b + 1].copy())
+            if step.last[i]:
+                lanes.running[b] = False
+                self._finish(lanes, run, b, None)
+                finished.append(b)
+
+    def _dense_samples(
+        self,
+        lanes: _Lanes,
+        runs: Sequence[_Run],
+        rows: np.ndarray,
+        step: _Step,
+        t_new: np.ndarray,
+        fired: np.ndarray,
+        dense: np.ndarray,
+    ) -> None:
+        """Dense output of the ``dense`` lanes: event location, output times (batched).
+
+        A lane whose step fired a state event gets its earliest event located on the
+        step's continuous extension (as :class:`DOP853` does, with the phase's own event
+        functions), its output times up to it, and the event state; its interval ends.
+        """
+        sub, fired, t_new = rows[dense], fired[dense], t_new[dense]
+        lanes.evals[sub] += _N_EXTRA
+        part = step.select(dense)
+        F = self._dense_coefficients(lanes, sub, part)
+        owners: list[int] = []
+        times: list[float] = []
+        ends: dict[int, int] = {}
+        for i, b in enumerate(sub):
+            run = runs[int(b)]
+            t = float(lanes.t[b])
+            if fired[i].any():
+                tau, index = self._locate(lanes, run, int(b), F[i], float(part.h[i]), fired[i])
+                until = t + tau - (run.grid.slack if run.grid is not None else 0.0)
+                count = _grid_times(run.grid, until, times)
+                times.append(t + tau)
+                owners.extend([i] * (count + 1))
+                ends[int(b)] = index
+            else:
+                owners.extend([i] * _grid_times(run.grid, float(t_new[i]), times))
+        owner = np.array(owners, dtype=int)
+        when = np.array(times)
+        x = (when - lanes.t[sub][owner]) / part.h[owner]
+        y = _horner(F[owner], x, lanes.y[sub][owner])
+        _, lam = self.rhs(lanes, sub[owner], when, y)
+        split = np.flatnonzero(np.diff(owner)) + 1
+        starts = np.concatenate([[0], split]).astype(int)
+        for t_part, y_part, l_part, first in zip(
+            np.split(when, split), np.split(y, split), np.split(lam, split), starts, strict=True
+        ):
+            run = runs[int(sub[owner[first]])]
+            run.ts.append(t_part)
+            run.ys.append(y_part)
+            run.holds.append(l_part)
+        for b, event in ends.items():
+            self._finish(lanes, runs[b], b, event)
+
+    def _locate(
+        self, lanes: _Lanes, run: _Run, b: int, F: np.ndarray, h: float, fired: np.ndarray
+    ) -> tuple[float, int]:
+        """The earliest state event in run ``b``'s step: (offset [s], event index)."""
+        request = run.request
+        assert request is not None
+        reduced = run.reduced
+        y, Fr = lanes.y[b, reduced], F[::-1, reduced]
+
+        def dense(tau: float) -> np.ndarray:  # DOP853's continuous extension, as it has it
+            x = tau / h
+            out = np.zeros_like(y)
+            for i, row in enumerate(Fr):
+                out += row
+                out *= x if i % 2 == 0 else 1.0 - x
+            return y + out
+
+        events = [e.event for e in request.phase.events]
+        indices = sorted(int(lanes.event_index[b, j]) for j in np.flatnonzero(fired))
+        return locate(events, indices, float(lanes.t[b]), y, dense, h, self.integrator.event_tol)
+
+    def _dense_coefficients(self, lanes: _Lanes, rows: np.ndarray, step: _Step) -> np.ndarray:
+        """The 7th-order continuous extensions' coefficients F, shape (B, 7, ny)."""
+        K, h = step.K, step.h
+        t, y = lanes.t[rows], lanes.y[rows]
+        for s, (a, c) in enumerate(zip(_A_EXTRA, _C_EXTRA, strict=True), start=_S + 1):
+            dy = np.tensordot(a[:s], K[:s], axes=(0, 0))
+            K[s], _ = self.rhs(lanes, rows, t + c * h, y + h[:, None] * dy)
+        delta = step.y_new - y
+        F = np.empty((rows.size, coef.INTERPOLATOR_POWER, lanes.ny))
+        F[:, 0] = delta
+        F[:, 1] = h[:, None] * K[0] - delta
+        F[:, 2] = 2.0 * delta - h[:, None] * (step.f_new + K[0])
+        F[:, 3:] = h[:, None, None] * np.einsum("sk,kbi->bsi", coef.D, K)
+        return F
+
+    def _finish(self, lanes: _Lanes, run: _Run, b: int, event: int | None) -> None:
+        """Hand run ``b`` its segment (reduced layout) and take its next request."""
+        y = np.concatenate(run.ys)
+        hold = np.concatenate(run.holds)
+        locked = lanes.locked[b]
+        hold[:, ~locked] = np.nan
+        segment = Segment(
+            t=np.concatenate(run.ts),
+            y=y[:, run.reduced],
+            rhs_evals=int(lanes.evals[b]),
+            event=event,
+            n_steps=int(lanes.accepted[b]),
+            holding=hold,
+        )
+        run.ts, run.ys, run.holds = [], [], []
+        run.advance(segment)
+
+    def _fail(
+        self, lanes: _Lanes, runs: Sequence[_Run], b: int, error: VtmError, finished: list[int]
+    ) -> None:
+        lanes.running[b] = False
+        runs[b].advance(error=error)
+        finished.append(int(b))
+
+    def _step_limit(self, lanes: _Lanes, b: int) -> StepLimitError:
+        it = self.integrator
+        return StepLimitError(
+            f"dop853 took {it.max_steps} steps and reached only t = {lanes.t[b]:.6g} s of "
+            f"{lanes.t1[b]:g} s; the limit is {it.max_steps}: set integrator.max_steps, or "
+            "loosen rtol / atol",
+            it.max_steps + 1,
+            it.max_steps,
+        )
+
+
+@dataclass
+class _Step:
+    """The accepted step of some lanes: sizes, whether last, errors, stages, new states."""
+
+    h: np.ndarray
+    last: np.ndarray
+    err: np.ndarray
+    K: np.ndarray
+    y_new: np.ndarray
+    f_new: np.ndarray
+
+    def select(self, mask: np.ndarray) -> _Step:
+        return _Step(
+            self.h[mask],
+            self.last[mask],
+            self.err[mask],
+            self.K[:, mask],
+            self.y_new[mask],
+            self.f_new[mask],
+        )
+
+
+def _crossed(g0: np.ndarray, g1: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """:meth:`StateEvent.crossed`, elementwise (NaN never crosses)."""
+    with np.errstate(invalid="ignore"):
+        up = (direction >= 0) & (g0 < 0.0) & (0.0 <= g1)
+        down = (direction <= 0) & (g0 > 0.0) & (0.0 >= g1)
+        back = (g0 == 0.0) & (direction * g1 > 0.0)
+    return up | down | back
+
+
+def _horner(F: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """DOP853's dense output y + sum F_i x^.. (1 - x)^.., rows of F at offsets x = tau / h."""
+    out = np.zeros_like(y)
+    for i, row in enumerate(F[:, ::-1].transpose(1, 0, 2)):
+        out += row
+        out *= x[:, None] if i % 2 == 0 else (1.0 - x)[:, None]
+    return y + out
+
+
+def _rms(x: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """Root mean square of each row over its active entries."""
+    return np.sqrt(
+        np.einsum("bi,bi->b", np.where(active, x, 0.0), np.where(active, x, 0.0))
+    ) / np.sqrt(active.sum(axis=1))
+
+
+@dataclass(frozen=True)
+class BatchOutcome:
+    """The outcome of many runs.
+
+    Attributes:
+        results: Per run, its result, or the error that ended it.
+        engines: Per run, ``batched`` or ``scalar``.
+        fallbacks: Per run, why it went to the scalar engine (None if batched).
+        seconds: Wall time [s]: ``total``, and of the batched engine's ``dynamics`` (the
+            Pinocchio calls and the Schur complements) and ``events`` (event location).
+        aba_calls: Batched ABA calls made.
+        aba_states: States they evaluated.
+    """
+
+    results: tuple[SimulationResult | VtmError, ...]
+    engines: tuple[str, ...]
+    fallbacks: tuple[str | None, ...]
+    seconds: dict[str, float]
+    aba_calls: int
+    aba_states: int
+
+
+def run_many(
+    problems: Sequence[Problem],
+    integrators: Sequence[object],
+    *,
+    transition: str = "kkt",
+    engine: str = "batched",
+    threads: int = 1,
+) -> BatchOutcome:
+    """Run many problems; the batched engine takes those it can (see :func:`fallback_reason`).
+
+    Runs whose models have the same dynamics (:func:`model_key`) and the same integrator
+    settings advance together. A run's ``wall_time`` is its share of its batch's time.
+
+    Args:
+        problems: The runs.
+        integrators: Each run's integrator.
+        transition: Transition rule of every run.
+        engine: ``batched``, or ``scalar`` for one :func:`~vtm_pin.simulation.simulate` per
+            run.
+        threads: Threads of Pinocchio's parallel algorithms.
+
+    Raises:
+        SimulationError: An unknown engine.
+    """
+    from .simulation import simulate
+
+    if engine not in ENGINES:
+        raise SimulationError(f"Unknown engine '{engine}'; allowed: {', '.join(ENGINES)}")
+    begin = time.perf_counter()
+    results: list[SimulationResult | VtmError | None] = [None] * len(problems)
+    reasons = [
+        "engine scalar chosen" if engine == "scalar" else fallback_reason(p, i)
+        for p, i in zip(problems, integrators, strict=True)
+    ]
+    groups: dict[tuple[bytes, object], list[int]] = {}
+    for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
+        if reason is None:
+            key = (model_key(problem.robot.model), integrators[index])
+            groups.setdefault(key, []).append(index)
+            continue
+        try:
+            results[index] = simulate(problem, integrators[index], transition=transition)  # type: ignore[arg-type]
+        except VtmError as exc:
+            results[index] = exc
+    seconds = {"dynamics": 0.0, "events": 0.0}
+    calls = states = 0
+    for (_, integrator), indices in groups.items():
+        started = time.perf_counter()
+        runs = [
+            _Run(i, problems[i], integrator, transition)  # type: ignore[arg-type]
+            for i in indices
+        ]
+        for run in runs:
+            run.advance()
+        batch = BatchEngine(problems[indices[0]].robot.model, integrator, threads)  # type: ignore[arg-type]
+        batch.run(runs)
+        share = (time.perf_counter() - started) / len(runs)
+        for run in runs:
+            outcome = run.outcome
+            if isinstance(outcome, SimulationResult):
+                outcome = dataclasses.replace(outcome, wall_time=share)
+            results[run.index] = outcome
+        for name, value in batch.seconds.items():
+            seconds[name] += value
+        calls += batch.dynamics.aba_calls
+        states += batch.dynamics.aba_states
+    seconds["total"] = time.perf_counter() - begin
+    return BatchOutcome(
+        results=tuple(r for r in results if r is not None),
+        engines=tuple("scalar" if r is not None else "batched" for r in reasons),
+        fallbacks=tuple(reasons),
+        seconds=seconds,
+        aba_calls=calls,
+        aba_states=states,
+    )
+
+
+def simulate_many(
+    problems: Sequence[Problem],
+    integrator: object,
+    *,
+    transition: str = "kkt",
+    engine: str = "batched",
+    threads: int = 1,
+) -> list[SimulationResult]:
+    """Simulate many problems with one integrator; the first failure is raised.
+
+    Args:
+        problems: The runs.
+        integrator: The integrator of every run.
+        transition: Transition rule of every run.
+        engine: ``batched`` (runs it cannot take go to the scalar engine) or ``scalar``.
+        threads: Threads of Pinocchio's parallel algorithms.
+
+    Raises:
+        VtmError: The first run that failed.
+    """
+    outcome = run_many(
+        problems,
+        [integrator] * len(problems),
+        transition=transition,
+        engine=engine,
+        threads=threads,
+    )
+    for result in outcome.results:
+        if isinstance(result, VtmError):
+            raise result
+    return list(outcome.results)  # type: ignore[arg-type]
+
+
+def _due(grid: _Grid | None, t_new: float) -> bool:
+    """Whether an output time falls in a step ending at ``t_new`` [s]."""
+    return grid is not None and grid.due(t_new)
+
+
+def _grid_times(grid: _Grid | None, until: float, times: list[float]) -> int:
+    """Append the grid's output times up to ``until`` [s] (and its end); how many."""
+    if grid is None:
+        return 0
+    limit = min(until, grid.end)
+    count = 0
+    while (when := grid.k * grid.dt) <= limit:
+        times.append(when)
+        grid.k += 1
+        count += 1
+    return count
