@@ -68,3 +68,17 @@ def test_recursive_lock_equals_kkt_on_chains(n, spatial, seed, data) -> None:
     joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
     split = data.draw(st.integers(0, len(joints) - 1))
     compare(robot.model, q, v, joints[:split], joints[split:])
+
+
+@pytest.mark.parametrize("name", ["rx160l", "panda"])
+def test_locking_joints_at_rest_changes_nothing_exactly(name: str) -> None:
+    """No jump, no impulse, to the last bit (the brake state machine reads exact zeros)."""
+    robot = load_robot(name)
+    rng = np.random.default_rng(11)
+    n = robot.nv
+    q = rng.uniform(-1.0, 1.0, n)
+    v = rng.uniform(-2.0, 2.0, n)
+    v[[1, 3]] = 0.0
+    fast = compute_joint_lock_transition(weightless(robot.model), q, v, [3], [1])
+    np.testing.assert_array_equal(fast.v_plus, v)
+    np.testing.assert_array_equal(fast.Lambda, 0.0)

@@ -15,7 +15,7 @@ from .drives import DriveLaw, DriveOff
 from .dynamics import compute_M
 from .holonomic import FrameConstraint, compute_kinematics, stack
 from .robot import Robot
-from .topology import Topology
+from .topology import Topology, full_data
 from .transitions import solve_saddle_point
 
 
@@ -60,7 +60,7 @@ class Phase:
             if brakes and self.modes[int(j)].sliding
         ]
         self._signs = {int(j): self.modes[int(j)].sign for _, j, _ in self._sliding}
-        self._full_data = robot.model.createData()
+        self._full_data = full_data(robot)
         self.events = (
             brakes.state_events(free.tolist(), topology.locked, self.holding_torque)
             if brakes
@@ -69,8 +69,13 @@ class Phase:
         #: No torque acts: y is (q_f, v_f) only and the accumulators stay constant.
         self.constraints = tuple(constraints)
         self.baumgarte = baumgarte
-        self.passive = not self._drive_f.any() and not self._sliding and not self.constraints
+        self._drives = bool(self._drive_f.any())
+        self.passive = not self._drives and not self._sliding and not self.constraints
         self.rhs = self.topology.rhs if self.passive else self._rhs
+        # Per-call constants of the right-hand side: no torque, and where the impulses go.
+        self._no_torque = np.zeros(self.k)
+        self._no_torque.flags.writeable = False
+        self._impulse_index = 2 * self.k + 2 + free
 
     def pack(self, q: np.ndarray, v: np.ndarray, extras: np.ndarray) -> np.ndarray:
         """Y from full (q, v) and the work/impulse accumulators (omitted when passive)."""
@@ -85,13 +90,14 @@ class Phase:
 
     def torques(self, t: float, q_f: np.ndarray, v_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Drive and brake torques on the free joints [N m]."""
-        k = self.k
-        tau_drive = np.zeros(k)
-        if self._drive_f.any():
+        tau_drive = self._no_torque
+        if self._drives:
             topology = self.topology
             tau = self.drive.torques(topology.model, topology.data, t, q_f, v_f)
             tau_drive = np.where(self._drive_f, tau, 0.0)
-        tau_brake = np.zeros(k)
+        if not self._sliding:
+            return tau_drive, self._no_torque
+        tau_brake = np.zeros(self.k)
         ratio = self.robot.gear_ratio
         for f, j, brake in self._sliding:
             tau_brake[f] = -self._signs[j] * brake.sliding(t - self.engaged[j], v_f[f], ratio[j])
@@ -108,12 +114,13 @@ class Phase:
         if self.constraints:
             a = self.constrained_acceleration(y, tau_drive + tau_brake)[0]
         else:
-            a = pin.aba(self.topology.model, self.topology.data, q_f, v_f, tau_drive + tau_brake)
+            topology = self.topology
+            a = pin.aba(topology.model, topology.data, q_f, v_f, tau_drive + tau_brake)
         out[:k] = v_f
         out[k : 2 * k] = a
-        out[2 * k] = -float(tau_brake @ v_f)
-        out[2 * k + 1] = float(tau_drive @ v_f)
-        out[2 * k + 2 + self.topology.free] = tau_brake
+        out[2 * k] = -float(tau_brake.dot(v_f))
+        out[2 * k + 1] = float(tau_drive.dot(v_f))
+        out[self._impulse_index] = tau_brake
         return out
 
     def constrained_acceleration(
@@ -179,5 +186,6 @@ class Phase:
             )
         tau = pin.rnea(self.robot.model, self._full_data, q, v, a)
         out = np.zeros(self.robot.nv)
-        out[list(self.topology.locked)] = tau[list(self.topology.locked)]
+        locked = self.topology.locked_index
+        out[locked] = tau[locked]
         return out

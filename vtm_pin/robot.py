@@ -10,7 +10,7 @@ import tempfile
 from collections import OrderedDict
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -27,6 +27,7 @@ from .exceptions import (
     excerpt,
 )
 from .inputs import check_schema, number, read_yaml
+from .model_cache import ModelCache
 
 #: Folder of the URDF models shipped with the project: ``robots/`` at the top of the source
 #: tree, installed as the package data ``vtm_pin.robots`` (so an installed wheel has it too).
@@ -117,6 +118,9 @@ class Robot:
         tool_frame: Frame whose path the stopping report follows (the tool centre point).
         assumptions: Stated assumptions behind the model's figures (from the robot's
             ``<name>.yaml`` beside its URDF), quoted by reports.
+        cache: Reduced models and Pinocchio Data built from ``model`` (see
+            :mod:`vtm_pin.model_cache`); a new robot, or a copy with another model, starts
+            with an empty one. ``model`` must not be changed in place once it is used.
     """
 
     name: str
@@ -126,6 +130,7 @@ class Robot:
     gear_ratio: np.ndarray
     tool_frame: str = ""
     assumptions: tuple[str, ...] = ()
+    cache: ModelCache = field(default_factory=ModelCache, init=False, repr=False, compare=False)
 
     @property
     def nv(self) -> int:

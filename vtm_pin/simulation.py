@@ -36,8 +36,9 @@ from .results import (
 )
 from .robot import Robot
 from .stop import Stop
-from .topology import Topology
-from .transitions import TRANSITIONS
+from .topology import Topology, full_data, reduced_model, weightless_model
+from .transitions import TRANSITIONS, TransitionResult
+from .transitions.recursive import compute_joint_lock_transition
 
 
 class _Hybrid:
@@ -66,7 +67,7 @@ class _Hybrid:
         self.rule_name = rule
         self.frames: list[FrameConstraint] = []
         self.baumgarte = (0.0, 0.0)
-        self.data = robot.model.createData()
+        self.data = full_data(robot)
         self.events: list[EventRecord] = []
         self.phase = self.new_phase()
 
@@ -97,25 +98,20 @@ class _Hybrid:
         for i in joints:
             if i in self.locked:
                 raise SimulationError(f"Joint '{names[i]}' is locked twice (again at t = {t} s)")
-        model, n = self.robot.model, self.robot.nv
-        frames = [f.latch(model, self.data, self.q) for f in frames]
+        frames = [f.latch(self.robot.model, self.data, self.q) for f in frames]
         if (frames or self.frames) and self.rule_name == "naive":
             raise SimulationError("The naive rule is defined for joint locks only")
-        if self.frames or frames:
-            compute_kinematics(model, self.data, self.q, self.v)
-        _, F1, _ = stack(tuple(self.frames), model, self.data)
-        _, F2, _ = stack(tuple(frames), model, self.data)
-        J1 = np.vstack([lock_jacobian(n, self.locked), F1])
-        J2 = np.vstack([lock_jacobian(n, joints), F2])
         labels = [
             *(RowLabel(RowKind.JOINT, names[i]) for i in self.locked),
             *(RowLabel(RowKind.FRAME, f.name, a) for f in self.frames for a in f.axes),
             *(RowLabel(RowKind.JOINT, names[i]) for i in joints),
             *(RowLabel(RowKind.FRAME, f.name, a) for f in frames for a in f.axes),
         ]
-        check_independent(np.vstack([J1, J2]), [str(label) for label in labels])
-        M = compute_M(model, self.data, self.q)
-        result = self.rule(M, J1, J2, self.v)
+        pure = not (frames or self.frames) and len(set(joints)) == len(joints)
+        if pure and self.rule_name == "kkt":
+            result = self.joint_lock(joints)
+        else:
+            result = self.transition(joints, frames, labels)
         self.events.append(
             EventRecord(
                 t=t,
@@ -133,6 +129,35 @@ class _Hybrid:
         self.frames = self.frames + frames
         self.v = result.v_plus.copy()
         self.v[self.locked] = 0.0
+
+    def joint_lock(self, joints: Sequence[int]) -> TransitionResult:
+        """The kkt rule's jump for pure joint locks, in O(n) without forming M.
+
+        Distinct unit rows are independent, so no rank check is needed; the reduced models
+        come from the robot's cache (the next phase reuses the one with gravity).
+        """
+        robot = self.robot
+        locked = tuple(sorted([*self.locked, *joints]))
+        model, data = weightless_model(robot)
+        reduced, reduced_data = reduced_model(robot, locked, self.q[list(locked)], weightless=True)
+        return compute_joint_lock_transition(
+            model, self.q, self.v, self.locked, joints, reduced, data, reduced_data
+        )
+
+    def transition(
+        self, joints: Sequence[int], frames: Sequence[FrameConstraint], labels: Sequence[RowLabel]
+    ) -> TransitionResult:
+        """The rule's jump from the dense M and the stacked J1 (locks, frames) and J2 (new)."""
+        model, n = self.robot.model, self.robot.nv
+        if self.frames or frames:
+            compute_kinematics(model, self.data, self.q, self.v)
+        _, F1, _ = stack(tuple(self.frames), model, self.data)
+        _, F2, _ = stack(tuple(frames), model, self.data)
+        J1 = np.vstack([lock_jacobian(n, self.locked), F1])
+        J2 = np.vstack([lock_jacobian(n, joints), F2])
+        check_independent(np.vstack([J1, J2]), [str(label) for label in labels])
+        M = compute_M(model, self.data, self.q)
+        return self.rule(M, J1, J2, self.v)
 
     def engage(self, t: float, i: int, ideal_locks: list[int]) -> None:
         """Brake ``i`` engages: its drive goes off; an ideal brake's joint locks now."""

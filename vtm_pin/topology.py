@@ -2,7 +2,9 @@
 
 Between events only the free coordinates are integrated (model only what the scene requires):
 Pinocchio's ``buildReducedModel`` fixes the locked joints at their event configuration, and
-ABA on the reduced model gives the free accelerations in O(n_free).
+ABA on the reduced model gives the free accelerations in O(n_free). Reduced models and their
+Pinocchio Data come from the robot's cache (:mod:`vtm_pin.model_cache`), keyed by the lock set
+and the locked joints' angles, and are built only when a phase first needs them.
 """
 
 from __future__ import annotations
@@ -15,6 +17,60 @@ import pinocchio as pin
 from .robot import Robot
 
 
+def full_data(robot: Robot) -> pin.Data:
+    """The robot's shared Pinocchio Data of its full model (scratch space, see the cache)."""
+    model = robot.model
+    data: pin.Data = robot.cache.get("data", model.createData)
+    return data
+
+
+def weightless_model(robot: Robot) -> tuple[pin.Model, pin.Data]:
+    """The robot's model without gravity, and its Data (for M v and M^-1 tau products)."""
+    return robot.cache.get("weightless", lambda: _with_data(_weightless(robot.model)))
+
+
+def reduced_model(
+    robot: Robot, locked: tuple[int, ...], q_locked: np.ndarray, weightless: bool = False
+) -> tuple[pin.Model, pin.Data]:
+    """The model with the coordinates ``locked`` fixed at ``q_locked`` [rad], and its Data.
+
+    Pinocchio's ``buildReducedModel`` uses the angles of the locked joints only, so the
+    model is cached under the lock set and those angles (their exact bytes).
+
+    Args:
+        robot: The full robot.
+        locked: Sorted indices of the locked coordinates; empty: the full model.
+        q_locked: Their angles [rad], shape (len(locked),).
+        weightless: Without gravity (for the products of the joint-lock transition).
+    """
+    if not locked:
+        return weightless_model(robot) if weightless else (robot.model, full_data(robot))
+    key = ("reduced", locked, np.asarray(q_locked, dtype=float).tobytes(), weightless)
+    if weightless:
+        return robot.cache.get(
+            key, lambda: _with_data(_weightless(reduced_model(robot, locked, q_locked)[0]))
+        )
+
+    def build() -> tuple[pin.Model, pin.Data]:
+        model = robot.model
+        q = np.zeros(robot.nv)
+        q[list(locked)] = q_locked
+        ids = [model.getJointId(robot.joints[i]) for i in locked]
+        return _with_data(pin.buildReducedModel(model, ids, q))
+
+    return robot.cache.get(key, build)
+
+
+def _weightless(model: pin.Model) -> pin.Model:
+    copy = pin.Model(model)
+    copy.gravity = pin.Motion.Zero()
+    return copy
+
+
+def _with_data(model: pin.Model) -> tuple[pin.Model, pin.Data]:
+    return model, model.createData()
+
+
 class Topology:
     """The lock set of one phase of motion and the reduced dynamics of its free coordinates.
 
@@ -25,37 +81,53 @@ class Topology:
     """
 
     def __init__(self, robot: Robot, locked: Sequence[int], q: np.ndarray) -> None:
-        self.nv = robot.nv
+        self.robot = robot
+        self.nv = nv = robot.nv
         self.locked = tuple(sorted(int(i) for i in locked))
-        self.free = np.setdiff1d(np.arange(self.nv), self.locked)
-        self.q_locked = np.asarray(q, dtype=float)[list(self.locked)].copy()
-        model = robot.model
-        if self.locked and self.free.size:
-            joint_ids = [model.getJointId(robot.joints[i]) for i in self.locked]
-            self.model = pin.buildReducedModel(model, joint_ids, np.asarray(q, dtype=float))
-        else:
-            self.model = model
-        self.data = self.model.createData()
-        self._tau = np.zeros(self.free.size)
+        held = set(self.locked)
+        self.free = np.array([i for i in range(nv) if i not in held], dtype=np.intp)
+        #: ``locked`` as an index array [-].
+        self.locked_index = np.array(self.locked, dtype=np.intp)
+        self.q_locked = np.asarray(q, dtype=float)[self.locked_index]
         self._k = int(self.free.size)
+        self._tau = np.zeros(self._k)
+        self._model: pin.Model | None = None
+        self._data: pin.Data | None = None
+
+    def _build(self) -> tuple[pin.Model, pin.Data]:
+        if self._k == 0:  # nothing moves: the full model (never evaluated)
+            self._model, self._data = self.robot.model, full_data(self.robot)
+        else:
+            self._model, self._data = reduced_model(self.robot, self.locked, self.q_locked)
+        return self._model, self._data
+
+    @property
+    def model(self) -> pin.Model:
+        """Pinocchio model of the free coordinates (the full one if none or all are locked)."""
+        return self._build()[0] if self._model is None else self._model
+
+    @property
+    def data(self) -> pin.Data:
+        """Pinocchio Data of :attr:`model` (shared scratch space)."""
+        return self._build()[1] if self._data is None else self._data
 
     @property
     def n_free(self) -> int:
         """Number of free coordinates."""
-        return int(self.free.size)
+        return self._k
 
     def split(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Free state y = (q_f, v_f) of the full (q, v)."""
-        return np.concatenate([q[self.free], v[self.free]])
+        return np.concatenate((q[self.free], v[self.free]))
 
     def merge(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Full (q, v) of a free state y; locked q at their lock values, locked v exactly 0."""
-        k = self.n_free
+        k = self._k
         q = np.empty(self.nv)
         v = np.zeros(self.nv)
-        q[list(self.locked)] = self.q_locked
+        q[self.locked_index] = self.q_locked
         q[self.free] = y[:k]
-        v[self.free] = y[k:]
+        v[self.free] = y[k : 2 * k]
         return q, v
 
     def rhs(self, t: float, y: np.ndarray) -> np.ndarray:
@@ -64,6 +136,7 @@ class Topology:
         out = np.empty(2 * k)
         if k == 0:
             return out
+        model, data = (self._model, self._data) if self._model is not None else self._build()
         out[:k] = y[k:]
-        out[k:] = pin.aba(self.model, self.data, y[:k], y[k:], self._tau)
+        out[k:] = pin.aba(model, data, y[:k], y[k:], self._tau)
         return out

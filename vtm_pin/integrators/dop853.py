@@ -197,16 +197,18 @@ class DOP853:
         self, f: Rhs, t: float, y: np.ndarray, fy: np.ndarray, h: float, K: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, float]:
         """One step: new state, f at it, and the scaled error norm (<= 1 to accept)."""
+        # ndarray.dot rather than @: the same BLAS products (bit for bit), less call overhead.
         K[0] = fy
         for s, a, c in _STAGES:
-            K[s] = f(t + c * h, y + h * (a @ K[:s]))
-        y_new = y + h * (_B @ K[:_S])
+            K[s] = f(t + c * h, y + h * a.dot(K[:s]))
+        y_new = y + h * _B.dot(K[:_S])
         f_new = f(t + h, y_new)
         K[_S] = f_new
         scale = self._scale(y, y_new)
-        err5 = (_E5 @ K[: _S + 1]) / scale
-        err3 = (_E3 @ K[: _S + 1]) / scale
-        e5, e3 = float(err5 @ err5), float(err3 @ err3)
+        Kn = K[: _S + 1]
+        err5 = _E5.dot(Kn) / scale
+        err3 = _E3.dot(Kn) / scale
+        e5, e3 = float(err5.dot(err5)), float(err3.dot(err3))
         if e5 == 0.0 and e3 == 0.0:
             return y_new, f_new, 0.0
         return y_new, f_new, abs(h) * e5 / math.sqrt((e5 + 0.01 * e3) * y.size)

@@ -4,8 +4,10 @@ When only joints lock (no frame constraints), the paper's transition keeps the m
 joints still free: with f the free and l the locked coordinates after the event,
 
 .. math::
-    M_{ff} \dot q_f^+ = (M \dot q^-)_f, \qquad \dot q_l^+ = 0.
+    M_{ff} \dot q_f^+ = (M \dot q^-)_f, \qquad \dot q_l^+ = 0,
 
+computed as the jump of the free rates, M_ff dv_f = M_fl v-_l, so that locking joints at rest
+leaves v exactly unchanged (as the kkt solve does: the brake state machine reads exact zeros).
 No dense M is needed. ``M v`` is one RNEA pass without gravity at zero velocity with the
 acceleration v, and ``M_ff^{-1} x`` one ABA pass on the model with the locked joints fixed
 (Pinocchio's ``buildReducedModel``), without gravity, at zero velocity, with the torque x. The
@@ -21,6 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from ..exceptions import TransitionError
 from .base import TransitionResult
 
 
@@ -61,11 +64,13 @@ def compute_joint_lock_transition(
         first), energy loss, the free joints' momenta before and after, residual 0.
     """
     locked = [*locked_before, *joints]
-    free = np.setdiff1d(np.arange(model.nv), locked)
+    held = set(locked)
+    free = np.array([i for i in range(model.nv) if i not in held], dtype=np.intp)
     data = model.createData() if data is None else data
     zero = np.zeros(model.nv)
-    p_minus = np.array(pin.rnea(model, data, q, zero, v_minus))  # M v-
-    v_plus = np.zeros(model.nv)
+    p_minus = pin.rnea(model, data, q, zero, v_minus)  # M v- (a new array)
+    v_plus = np.array(v_minus, dtype=float)
+    v_plus[locked] = 0.0
     if free.size:
         if reduced is None:
             ids = [model.joints[j].id for j in range(1, model.njoints)]
@@ -73,10 +78,17 @@ def compute_joint_lock_transition(
             reduced = pin.buildReducedModel(model, fixed, q)
             reduced_data = None
         reduced_data = reduced.createData() if reduced_data is None else reduced_data
-        q_free = q[free]
-        v_plus[free] = pin.aba(reduced, reduced_data, q_free, np.zeros(free.size), p_minus[free])
+        v_locked = np.array(v_minus, dtype=float)
+        v_locked[free] = 0.0
+        tau = pin.rnea(model, data, q, zero, v_locked)[free]  # M_fl v-_l
+        v_plus[free] += pin.aba(reduced, reduced_data, q[free], np.zeros(free.size), tau)
+    if not np.all(np.isfinite(v_plus)):
+        raise TransitionError(
+            "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
+            "matrix is singular or too ill-conditioned for this lock"
+        )
     dv = v_plus - v_minus
-    M_dv = np.array(pin.rnea(model, data, q, zero, dv))  # M (v+ - v-)
+    M_dv = pin.rnea(model, data, q, zero, dv)  # M (v+ - v-)
     p_plus = p_minus + M_dv
     return TransitionResult(
         v_plus=v_plus,
