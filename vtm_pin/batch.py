@@ -135,13 +135,11 @@ class _Dynamics:
             return a, lam
         n = self.n
         mask = locked[rows]
+        lane, joint = np.nonzero(mask)  # one weightless ABA per (run, locked joint), one call
+        unit = np.zeros((lane.size, n))
+        unit[np.arange(lane.size), joint] = 1.0
         columns = np.zeros((rows.size, n, n))  # columns[b, :, i] = M^-1 e_i where i is locked
-        zero = np.zeros((rows.size, n))
-        for i in np.flatnonzero(mask.any(axis=0)):
-            sub = np.flatnonzero(mask[:, i])
-            unit = zero[sub].copy()
-            unit[:, i] = 1.0
-            columns[sub, :, i] = self._aba(self.weightless, q[rows[sub]], zero[sub], unit)
+        columns[lane, :, joint] = self._aba(self.weightless, q[rows[lane]], unit * 0.0, unit)
         both = mask[:, :, None] & mask[:, None, :]
         schur = np.where(both, columns, 0.0) + np.where(mask, 0.0, 1.0)[:, :, None] * np.eye(n)
         a0 = a[rows]
