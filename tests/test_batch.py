@@ -173,7 +173,15 @@ def test_small_study_agrees_and_counts_fallbacks(tmp_path: Path) -> None:
     engines = batched.summary["engines"]
     assert engines["batched"] == 8 and engines["scalar"] == 8
     assert engines["fallbacks"] == {"category-1 stop (drives ramp the rates down)": 8}
-    assert scalar.summary["engines"] == {"batched": 0, "scalar": 16, "fallbacks": {}}
+    assert {k: scalar.summary["engines"][k] for k in ("batched", "scalar", "fallbacks")} == {
+        "batched": 0,
+        "scalar": 16,
+        "fallbacks": {},
+    }
+    split = engines["batched_split_total"]
+    assert set(split) == {"dynamics", "hybrid", "location", "stepping"}
+    assert all(value >= 0.0 for value in split.values()) and split["dynamics"] > 0.0
+    assert engines["rhs_evals_total"] > 0
     assert "batched engine" in batched.summary["executor"]
 
 

@@ -47,6 +47,10 @@ from .simulation import SegmentRequest, hybrid_run
 from .transitions.recursive import weightless
 
 ENGINES = ("batched", "scalar")
+#: Where a batch's wall time goes: the Pinocchio calls with the Schur complements, the runs'
+#: hybrid loops (brake decisions, locks, traces), event location on the dense output, and
+#: the rest: the vectorised step control and dense output in NumPy.
+PARTS = ("dynamics", "hybrid", "location", "stepping")
 
 _S = coef.N_STAGES
 _A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
@@ -240,7 +244,9 @@ class BatchEngine:
         self.dynamics = _Dynamics(model, threads)
         self.integrator = integrator
         self.n = model.nv
-        self.seconds = {"dynamics": 0.0, "events": 0.0}
+        #: Wall time [s] in the dynamics (Pinocchio calls and Schur complements), the runs'
+        #: hybrid loops (brake decisions, locks, traces) and event location.
+        self.seconds = dict.fromkeys(PARTS[:3], 0.0)
 
     # The right-hand side of every lane in ``rows`` at times t and padded states y.
 
@@ -290,7 +296,7 @@ class BatchEngine:
                     continue
                 request = run.request
                 if request.phase.k == 0 or request.t1 <= request.t0:  # the scalar is instant
-                    run.advance(run.request.integrate())
+                    self._advance(run, request.integrate())
                     again.append(b)
                     continue
                 self._load(lanes, b, run)
@@ -529,9 +535,7 @@ class BatchEngine:
             dtype=bool,
         )
         if events.any() or due.any():
-            begin = time.perf_counter()
             self._dense_samples(lanes, runs, rows, step, t_new, fired, events | due)
-            self.seconds["events"] += time.perf_counter() - begin
         for b in rows[events]:
             lanes.running[b] = False
             finished.append(int(b))
@@ -631,7 +635,10 @@ class BatchEngine:
 
         events = [e.event for e in request.phase.events]
         indices = sorted(int(lanes.event_index[b, j]) for j in np.flatnonzero(fired))
-        return locate(events, indices, float(lanes.t[b]), y, dense, h, self.integrator.event_tol)
+        begin = time.perf_counter()
+        found = locate(events, indices, float(lanes.t[b]), y, dense, h, self.integrator.event_tol)
+        self.seconds["location"] += time.perf_counter() - begin
+        return found
 
     def _dense_coefficients(self, lanes: _Lanes, rows: np.ndarray, step: _Step) -> np.ndarray:
         """The 7th-order continuous extensions' coefficients F, shape (B, 7, ny)."""
@@ -663,13 +670,21 @@ class BatchEngine:
             holding=hold,
         )
         run.ts, run.ys, run.holds = [], [], []
-        run.advance(segment)
+        self._advance(run, segment)
+
+    def _advance(
+        self, run: _Run, segment: Segment | None = None, error: VtmError | None = None
+    ) -> None:
+        """Hand a run its segment (or error), timing its hybrid loop."""
+        begin = time.perf_counter()
+        run.advance(segment, error)
+        self.seconds["hybrid"] += time.perf_counter() - begin
 
     def _fail(
         self, lanes: _Lanes, runs: Sequence[_Run], b: int, error: VtmError, finished: list[int]
     ) -> None:
         lanes.running[b] = False
-        runs[b].advance(error=error)
+        self._advance(runs[b], error=error)
         finished.append(int(b))
 
     def _step_limit(self, lanes: _Lanes, b: int) -> StepLimitError:
@@ -738,8 +753,8 @@ class BatchOutcome:
         results: Per run, its result, or the error that ended it.
         engines: Per run, ``batched`` or ``scalar``.
         fallbacks: Per run, why it went to the scalar engine (None if batched).
-        seconds: Wall time [s]: ``total``, and of the batched engine's ``dynamics`` (the
-            Pinocchio calls and the Schur complements) and ``events`` (event location).
+        seconds: Wall time [s]: ``total``, and the batched engine's split (:data:`PARTS`).
+        shares: Per batched run, its share of its batch's split [s]; None if scalar.
         aba_calls: Batched ABA calls made.
         aba_states: States they evaluated.
     """
@@ -748,6 +763,7 @@ class BatchOutcome:
     engines: tuple[str, ...]
     fallbacks: tuple[str | None, ...]
     seconds: dict[str, float]
+    shares: tuple[dict[str, float] | None, ...]
     aba_calls: int
     aba_states: int
 
@@ -796,7 +812,8 @@ def run_many(
             results[index] = simulate(problem, integrators[index], transition=transition)  # type: ignore[arg-type]
         except VtmError as exc:
             results[index] = exc
-    seconds = {"dynamics": 0.0, "events": 0.0}
+    seconds = dict.fromkeys(PARTS, 0.0)
+    shares: list[dict[str, float] | None] = [None] * len(problems)
     calls = states = 0
     for (_, integrator), indices in groups.items():
         started = time.perf_counter()
@@ -804,17 +821,20 @@ def run_many(
             _Run(i, problems[i], integrator, transition)  # type: ignore[arg-type]
             for i in indices
         ]
-        for run in runs:
-            run.advance()
         batch = BatchEngine(problems[indices[0]].robot.model, integrator, threads)  # type: ignore[arg-type]
+        for run in runs:
+            batch._advance(run)
         batch.run(runs)
-        share = (time.perf_counter() - started) / len(runs)
+        elapsed = time.perf_counter() - started
+        parts = {**batch.seconds, "stepping": elapsed - sum(batch.seconds.values())}
+        share = {name: value / len(runs) for name, value in parts.items()}
         for run in runs:
             outcome = run.outcome
             if isinstance(outcome, SimulationResult):
-                outcome = dataclasses.replace(outcome, wall_time=share)
+                outcome = dataclasses.replace(outcome, wall_time=elapsed / len(runs))
             results[run.index] = outcome
-        for name, value in batch.seconds.items():
+            shares[run.index] = share
+        for name, value in parts.items():
             seconds[name] += value
         calls += batch.dynamics.aba_calls
         states += batch.dynamics.aba_states
@@ -824,6 +844,7 @@ def run_many(
         engines=tuple("scalar" if r is not None else "batched" for r in reasons),
         fallbacks=tuple(reasons),
         seconds=seconds,
+        shares=tuple(shares),
         aba_calls=calls,
         aba_states=states,
     )

@@ -39,7 +39,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .batch import ENGINES
+from .batch import ENGINES, PARTS
 from .exceptions import OutputError, StudyError, VtmError
 from .robot import RobotCache
 from .staging import write_staged
@@ -188,11 +188,13 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
             transition=transition,
             engine=engine,
         )
-        for (record, scenario), result, used, reason in zip(
-            pairs, outcome.results, outcome.engines, outcome.fallbacks, strict=True
+        for (record, scenario), result, used, reason, share in zip(
+            pairs, outcome.results, outcome.engines, outcome.fallbacks, outcome.shares, strict=True
         ):
             record["engine"] = used
             record["fallback"] = reason if engine == "batched" else None
+            if share is not None:
+                record["engine_split"] = share
             _record_result(record, scenario, result, scenario_failure)
     for record in records:
         timing = record["timing"]
@@ -220,6 +222,7 @@ def _record_result(
         record["assumptions"] = list(scenario.robot.assumptions) + list(scenario.assumptions)
         record["tool_frame"] = scenario.tool_frame
         record["timing"]["simulate"] = float(result.wall_time)
+        record["rhs_evals"] = int(result.rhs_evals)
     except Exception as exc:
         _record_error(record, exc)
     record["timing"]["report"] = time.perf_counter() - begin
@@ -707,10 +710,13 @@ def _engine_counts(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     for record in records:
         if record.get("fallback"):
             reasons[str(record["fallback"])] = reasons.get(str(record["fallback"]), 0) + 1
+    split = [r["engine_split"] for r in records if "engine_split" in r]
     return {
         "batched": engines.count("batched"),
         "scalar": engines.count("scalar"),
         "fallbacks": dict(sorted(reasons.items())),
+        "batched_split_total": {part: sum(s.get(part, 0.0) for s in split) for part in PARTS},
+        "rhs_evals_total": sum(int(r.get("rhs_evals", 0)) for r in records),
     }
 
 
