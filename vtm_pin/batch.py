@@ -203,7 +203,7 @@ class _Run:
     def __init__(self, index: int, problem: Problem, integrator: DOP853, transition: str) -> None:
         self.index = index
         self.loop: Generator[SegmentRequest, Segment, SimulationResult] = hybrid_run(
-            problem, integrator, transition=transition
+            problem, integrator, transition=transition, reduced_models=False
         )
         self.request: SegmentRequest | None = None
         self.outcome: SimulationResult | VtmError | None = None

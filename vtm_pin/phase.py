@@ -7,10 +7,12 @@ the angular impulse each brake's friction has delivered to its joint [N m s] (n 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pinocchio as pin
 
-from .brakes import BrakeMachine, BrakeMode
+from .brakes import BrakeMachine, BrakeMode, BrakeStateEvent
 from .drives import DriveLaw, DriveOff
 from .dynamics import compute_M
 from .holonomic import FrameConstraint, compute_kinematics, stack
@@ -31,6 +33,9 @@ class Phase:
         drive_on: Per joint, whether its drive acts.
         constraints: Active frame constraints.
         baumgarte: Baumgarte gains (alpha, beta) [1/s] of the frame constraints.
+        full: Holding torques and accelerations from the full model (CRBA and a dense solve
+            of M_ff) instead of ABA on the reduced one, so that no reduced model is
+            built: for an integrator that does not use :meth:`rhs` (the batched engine).
     """
 
     def __init__(
@@ -42,8 +47,10 @@ class Phase:
         drive_on: np.ndarray | None = None,
         constraints: tuple[FrameConstraint, ...] = (),
         baumgarte: tuple[float, float] = (0.0, 0.0),
+        full: bool = False,
     ) -> None:
         self.robot = robot
+        self.full = full
         self.topology = topology
         self.machine = brakes
         self.modes = tuple(brakes.modes) if brakes else (BrakeMode.FREE,) * robot.nv
@@ -61,11 +68,7 @@ class Phase:
         ]
         self._signs = {int(j): self.modes[int(j)].sign for _, j, _ in self._sliding}
         self._full_data = full_data(robot)
-        self.events = (
-            brakes.state_events(free.tolist(), topology.locked, self.holding_torque)
-            if brakes
-            else []
-        )
+        self._last_hold: tuple[float, np.ndarray, np.ndarray] | None = None
         #: No torque acts: y is (q_f, v_f) only and the accumulators stay constant.
         self.constraints = tuple(constraints)
         self.baumgarte = baumgarte
@@ -76,6 +79,16 @@ class Phase:
         self._no_torque = np.zeros(self.k)
         self._no_torque.flags.writeable = False
         self._impulse_index = 2 * self.k + 2 + free
+
+    @functools.cached_property
+    def events(self) -> list[BrakeStateEvent]:
+        """The brake state events that end this phase (built on first use)."""
+        machine = self.machine
+        if machine is None:
+            return []
+        return machine.state_events(
+            self.topology.free.tolist(), self.topology.locked, self.holding_torque
+        )
 
     def pack(self, q: np.ndarray, v: np.ndarray, extras: np.ndarray) -> np.ndarray:
         """Y from full (q, v) and the work/impulse accumulators (omitted when passive)."""
@@ -166,26 +179,45 @@ class Phase:
             out[r] = np.max(np.abs(h)), np.max(np.abs(J @ v))
         return out
 
+    def accelerations(self, t: float, y: np.ndarray) -> np.ndarray:
+        """Joint accelerations at (t, y) [rad/s^2], zero at the locked joints.
+
+        ABA on the reduced model, or with ``full`` M_ff a_f = tau_f - b_f from the full model
+        (CRBA, RNEA, and a dense solve: n is small where this is used).
+        """
+        k = self.k
+        a = np.zeros(self.robot.nv)
+        if not k:
+            return a
+        tau_drive, tau_brake = self.torques(t, y[:k], y[k : 2 * k])
+        free = self.topology.free
+        if self.full:
+            q, v = self.topology.merge(y[: 2 * k])
+            model, data = self.robot.model, self._full_data
+            M = compute_M(model, data, q)[np.ix_(free, free)]
+            b = pin.nonLinearEffects(model, data, q, v)[free]
+            a[free] = np.linalg.solve(M, tau_drive + tau_brake - b)
+        else:
+            a[free] = pin.aba(
+                self.topology.model, self.topology.data, y[:k], y[k : 2 * k], tau_drive + tau_brake
+            )
+        return a
+
     def holding_torque(self, t: float, y: np.ndarray) -> np.ndarray:
         """Torque the locks must exert on every joint to keep the locked ones still [N m].
 
         This is the Lagrange multiplier of each lock (lambda = M a + b - tau at a locked
-        joint, with a from the free dynamics); zero at free joints.
+        joint, with a from the free dynamics); zero at free joints. The last state's
+        torques are kept: every stuck joint's slip event asks for them at the same state.
         """
-        k = self.k
-        q, v = self.topology.merge(y[: 2 * k])
-        a = np.zeros(self.robot.nv)
-        if k:
-            tau_drive, tau_brake = self.torques(t, y[:k], y[k : 2 * k])
-            a[self.topology.free] = pin.aba(
-                self.topology.model,
-                self.topology.data,
-                y[:k],
-                y[k : 2 * k],
-                tau_drive + tau_brake,
-            )
+        last = self._last_hold
+        if last is not None and last[0] == t and np.array_equal(last[1], y):
+            return last[2].copy()
+        q, v = self.topology.merge(y[: 2 * self.k])
+        a = self.accelerations(t, y)
         tau = pin.rnea(self.robot.model, self._full_data, q, v, a)
         out = np.zeros(self.robot.nv)
         locked = self.topology.locked_index
         out[locked] = tau[locked]
+        self._last_hold = (t, y.copy(), out.copy())
         return out

@@ -52,8 +52,10 @@ class _Hybrid:
         brakes: Sequence[Brake],
         stop: Stop | None,
         rule: str,
+        reduced: bool = True,
     ) -> None:
         self.robot = robot
+        self.reduced = reduced
         n = robot.nv
         self.q, self.v = q, v
         self.extras = np.zeros(2 + n)
@@ -81,6 +83,7 @@ class _Hybrid:
             self.drive_on,
             tuple(self.frames),
             self.baumgarte,
+            full=not self.reduced,
         )
 
     def lock(
@@ -108,7 +111,7 @@ class _Hybrid:
             *(RowLabel(RowKind.FRAME, f.name, a) for f in frames for a in f.axes),
         ]
         pure = not (frames or self.frames) and len(set(joints)) == len(joints)
-        if pure and self.rule_name == "kkt":
+        if pure and self.rule_name == "kkt" and self.reduced:
             result = self.joint_lock(joints)
         else:
             result = self.transition(joints, frames, labels)
@@ -181,9 +184,12 @@ class _Hybrid:
     def accelerations(self, t: float) -> np.ndarray:
         """Joint accelerations [rad/s^2] with the current locks and modes."""
         phase = self.new_phase()
+        y = phase.pack(self.q, self.v, self.extras)
+        if phase.full:
+            return phase.accelerations(t, y)
         k = phase.k
         a = np.zeros(self.robot.nv)
-        a[phase.topology.free] = phase.rhs(t, phase.pack(self.q, self.v, self.extras))[k : 2 * k]
+        a[phase.topology.free] = phase.rhs(t, y)[k : 2 * k]
         return a
 
     def stick(self, t: float, joints: Sequence[int]) -> None:
@@ -273,13 +279,16 @@ def hybrid_run(
     *,
     transition: str = "kkt",
     progress: Callable[[float], None] | None = None,
+    reduced_models: bool = True,
 ) -> Generator[SegmentRequest, Segment, SimulationResult]:
     """The hybrid loop of :func:`simulate` as a generator of integration requests.
 
     It yields a :class:`SegmentRequest` for every interval between events and must be sent
     the integrated :class:`~vtm_pin.integrators.Segment`; it returns the result (as the
     value of its ``StopIteration``). The wall time it reports includes the integration of
-    its intervals, whoever did it.
+    its intervals, whoever did it. Without ``reduced_models`` the loop's own dynamics (brake
+    decisions, holding torques, joint-lock jumps by the dense kkt rule) use the full model
+    only, for an integrator that does not evaluate the phases' reduced models.
 
     Raises:
         SimulationError: As :func:`simulate`.
@@ -292,7 +301,15 @@ def hybrid_run(
     robot, duration, stop = problem.robot, problem.duration, problem.stop
     n = robot.nv
     start = time.perf_counter()
-    h = _Hybrid(robot, problem.q0.copy(), problem.v0.copy(), problem.brakes, stop, transition)
+    h = _Hybrid(
+        robot,
+        problem.q0.copy(),
+        problem.v0.copy(),
+        problem.brakes,
+        stop,
+        transition,
+        reduced_models,
+    )
     h.baumgarte = problem.baumgarte
     if problem.constraints:
         h.frames = [c.latch(robot.model, h.data, h.q) for c in problem.constraints]

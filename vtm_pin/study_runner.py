@@ -1,7 +1,9 @@
 """Running a study: its cases on all cores or on a Dask cluster, stored as they finish.
 
-Every case is a full :func:`vtm_pin.pipeline.run` of the case's scenario. A case that fails
-is recorded with its one-line message and the study goes on. Each finished case is written at
+Every case is a simulation of the case's scenario and its stopping report, by the batched
+engine (:mod:`vtm_pin.batch`: a worker advances a batch of cases together; cases it cannot
+take run on the scalar engine) or the scalar one. A case that fails is recorded with its
+one-line message and the study goes on. Each finished case is written at
 once, atomically, to ``DIR/cases/<id>.json``; ``DIR/study.json`` holds the study's
 fingerprint. Run again after an interruption (Ctrl-C, or the process killed outright), the
 same command computes only the cases missing there; a changed study is refused rather than
@@ -448,7 +450,8 @@ def _refuse_all_failed(study: Study, records: Sequence[Mapping[str, Any]]) -> No
         )
 
 
-#: Most cases a worker advances together with the batched engine (memory: about 40 kB each).
+#: Most cases a worker advances together with the batched engine (a batch's traces are held
+#: in memory until it ends).
 BATCH_CASES = 2500
 
 
