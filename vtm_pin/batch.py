@@ -34,12 +34,12 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .brakes import BrakeMode, StateEventKind
+from .brakes import ROUNDOFF, BrakeMode, StateEventKind
 from .exceptions import SimulationError, StepLimitError, VtmError
 from .friction import Coulomb
 from .integrators import DOP853, Segment
 from .integrators import dop853_coefficients as coef
-from .integrators.dop853 import _Grid
+from .integrators.dop853 import _EXPONENT, _MAX_FACTOR, _MIN_FACTOR, _SAFETY, _Grid
 from .integrators.fixed_step import locate
 from .problem import Problem
 from .results import SimulationResult
@@ -56,8 +56,6 @@ _S = coef.N_STAGES
 _A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
 _A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
 _N_EXTRA = _A_EXTRA.shape[0]
-_SAFETY, _MIN_FACTOR, _MAX_FACTOR, _EXPONENT = 0.9, 0.2, 10.0, -1.0 / 8.0
-_ROUNDOFF = 1e-9  # vtm_pin.brakes.ROUNDOFF: the slip test's own round-off
 
 
 def fallback_reason(problem: Problem, integrator: object) -> str | None:
@@ -78,14 +76,18 @@ def fallback_reason(problem: Problem, integrator: object) -> str | None:
     if stop is not None and stop.t > 0.0:
         return "drives act before the stop signal (stop.t > 0)"
     for brake in problem.brakes:
-        if not brake.ideal and not isinstance(brake.friction, Coulomb):
+        if not brake.ideal and type(brake.friction) is not Coulomb:
             return f"{brake.friction.name} brake friction (the batched engine has Coulomb)"
     return None
 
 
 def model_key(model: pin.Model) -> bytes:
     """Bytes equal for two models with the same dynamics (inertias, placements, armature)."""
-    parts = [np.asarray(model.gravity.vector), np.asarray(model.armature)]
+    parts = [
+        np.asarray(model.gravity.vector),
+        np.asarray(model.armature),
+        np.asarray(model.parents, dtype=float),
+    ]
     for joint, placement, inertia in zip(
         model.joints, model.jointPlacements, model.inertias, strict=True
     ):
@@ -93,7 +95,7 @@ def model_key(model: pin.Model) -> bytes:
         parts.append(placement.homogeneous.ravel())
         parts.append(inertia.toDynamicParameters())
     return b"".join(np.ascontiguousarray(p, dtype=float).tobytes() for p in parts) + b"".join(
-        joint.shortname().encode() for joint in model.joints
+        str(joint).encode() for joint in model.joints
     )
 
 
@@ -179,7 +181,6 @@ class _Lanes:
         self.rejected = np.zeros(b, dtype=bool)
         self.locked = np.zeros((b, n), dtype=bool)
         self.sign = np.zeros((b, n))
-        self.kinetic = np.zeros((b, n))  # joint side: ratio x sliding torque [N m]
         self.ratio = np.ones((b, n))
         self.torque = np.zeros((b, n))  # motor side sliding torque [N m]
         self.breakaway = np.zeros((b, n))  # motor side static torque [N m]
@@ -296,7 +297,12 @@ class BatchEngine:
                     continue
                 request = run.request
                 if request.phase.k == 0 or request.t1 <= request.t0:  # the scalar is instant
-                    self._advance(run, request.integrate())
+                    try:
+                        segment = request.integrate()
+                    except Exception as exc:
+                        self._advance(run, error=_as_vtm_error(exc))
+                    else:
+                        self._advance(run, segment)
                     again.append(b)
                     continue
                 self._load(lanes, b, run)
@@ -310,6 +316,8 @@ class BatchEngine:
         lanes.h[rows] = self._first_step(lanes, rows)
         lanes.evals[rows] = 2
         lanes.g_prev[rows] = self._g(lanes, rows, lanes.t[rows], lanes.y[rows], lam)
+        for b in fresh:  # slip margins as the phase's own events have them (>= 0 after a stick)
+            self._own_margins(lanes, runs[b], b, lanes.t[b], lanes.y[b], lanes.g_prev[b], None)
         for b in fresh:  # the interval's first sample
             runs[b].ts.append(lanes.t[b : b + 1].copy())
             runs[b].ys.append(lanes.y[b : b + 1].copy())
@@ -409,7 +417,7 @@ class BatchEngine:
         )
         static = lanes.ratio[rows] * (factor * lanes.breakaway[rows])
         scale = np.maximum(1.0, np.max(np.abs(lam), axis=1))
-        margin = static + _ROUNDOFF * scale[:, None] - np.abs(lam)
+        margin = static + ROUNDOFF * scale[:, None] - np.abs(lam)
         g = np.where(kind == 1, y[:, n : 2 * n], margin)
         return np.where(kind == 0, np.nan, g)
 
@@ -526,6 +534,10 @@ class BatchEngine:
         g_new = self._g(lanes, rows, t_new, step.y_new, lam_new)
         fired = _crossed(lanes.g_prev[rows], g_new, lanes.event_dir[rows])
         fired &= lanes.event_kind[rows] != 0
+        slips = fired & (lanes.event_kind[rows] == 2)
+        for i in np.flatnonzero(slips.any(axis=1)):  # confirmed by the phase's own events
+            b = int(rows[i])
+            self._own_margins(lanes, runs[b], b, t_new[i], step.y_new[i], g_new[i], fired[i])
         events: np.ndarray = np.asarray(fired.any(axis=1))
         due = np.array(
             [
@@ -591,7 +603,11 @@ class BatchEngine:
             run = runs[int(b)]
             t = float(lanes.t[b])
             if fired[i].any():
-                tau, index = self._locate(lanes, run, int(b), F[i], float(part.h[i]), fired[i])
+                try:
+                    tau, index = self._locate(lanes, run, int(b), F[i], float(part.h[i]), fired[i])
+                except Exception as exc:
+                    self._advance(run, error=_as_vtm_error(exc))
+                    continue
                 until = t + tau - (run.grid.slack if run.grid is not None else 0.0)
                 count = _grid_times(run.grid, until, times)
                 times.append(t + tau)
@@ -599,7 +615,22 @@ class BatchEngine:
                 ends[int(b)] = index
             else:
                 owners.extend([i] * _grid_times(run.grid, float(t_new[i]), times))
-        owner = np.array(owners, dtype=int)
+        if owners:
+            self._store_samples(lanes, runs, sub, part, F, np.array(owners, dtype=int), times)
+        for b, event in ends.items():
+            self._finish(lanes, runs[b], b, event)
+
+    def _store_samples(
+        self,
+        lanes: _Lanes,
+        runs: Sequence[_Run],
+        sub: np.ndarray,
+        part: _Step,
+        F: np.ndarray,
+        owner: np.ndarray,
+        times: list[float],
+    ) -> None:
+        """The dense output at ``times`` [s] (of lanes ``sub[owner]``), with holding torques."""
         when = np.array(times)
         x = (when - lanes.t[sub][owner]) / part.h[owner]
         y = _horner(F[owner], x, lanes.y[sub][owner])
@@ -613,8 +644,37 @@ class BatchEngine:
             run.ts.append(t_part)
             run.ys.append(y_part)
             run.holds.append(l_part)
-        for b, event in ends.items():
-            self._finish(lanes, runs[b], b, event)
+
+    def _own_margins(
+        self,
+        lanes: _Lanes,
+        run: _Run,
+        b: int,
+        t: float,
+        y: np.ndarray,
+        g: np.ndarray,
+        fired: np.ndarray | None,
+    ) -> None:
+        """Run ``b``'s slip margins at (t, y) from its phase's own event functions.
+
+        They replace the batched values in ``g``; with ``fired``, a slip counts as fired only
+        if the phase's own margin crossed too (the two agree to round-off, and the phase's
+        events are what the event location uses).
+        """
+        request = run.request
+        assert request is not None
+        joints = np.flatnonzero(lanes.event_kind[b] == 2)
+        if fired is not None:
+            joints = joints[fired[joints]]
+        if joints.size == 0:
+            return
+        events = request.phase.events
+        own = y[run.reduced]
+        for j in joints:
+            event = events[int(lanes.event_index[b, j])].event
+            g[j] = event.g(float(t), own)
+            if fired is not None:
+                fired[j] = event.crossed(float(lanes.g_prev[b, j]), float(g[j]))
 
     def _locate(
         self, lanes: _Lanes, run: _Run, b: int, F: np.ndarray, h: float, fired: np.ndarray
@@ -792,8 +852,6 @@ def run_many(
     Raises:
         SimulationError: An unknown engine.
     """
-    from .simulation import simulate
-
     if engine not in ENGINES:
         raise SimulationError(f"Unknown engine '{engine}'; allowed: {', '.join(ENGINES)}")
     begin = time.perf_counter()
@@ -808,10 +866,7 @@ def run_many(
             key = (model_key(problem.robot.model), integrators[index])
             groups.setdefault(key, []).append(index)
             continue
-        try:
-            results[index] = simulate(problem, integrators[index], transition=transition)  # type: ignore[arg-type]
-        except VtmError as exc:
-            results[index] = exc
+        results[index] = _simulate_one(problem, integrators[index], transition)
     seconds = dict.fromkeys(PARTS, 0.0)
     shares: list[dict[str, float] | None] = [None] * len(problems)
     calls = states = 0
@@ -824,7 +879,13 @@ def run_many(
         batch = BatchEngine(problems[indices[0]].robot.model, integrator, threads)  # type: ignore[arg-type]
         for run in runs:
             batch._advance(run)
-        batch.run(runs)
+        try:
+            batch.run(runs)
+        except Exception as exc:
+            for run in runs:
+                if run.outcome is None:
+                    run.outcome = _simulate_one(problems[run.index], integrator, transition)
+                    reasons[run.index] = f"the batched engine failed ({type(exc).__name__})"
         elapsed = time.perf_counter() - started
         parts = {**batch.seconds, "stepping": elapsed - sum(batch.seconds.values())}
         share = {name: value / len(runs) for name, value in parts.items()}
@@ -839,8 +900,9 @@ def run_many(
         calls += batch.dynamics.aba_calls
         states += batch.dynamics.aba_states
     seconds["total"] = time.perf_counter() - begin
+    assert all(r is not None for r in results)
     return BatchOutcome(
-        results=tuple(r for r in results if r is not None),
+        results=tuple(results),  # type: ignore[arg-type]
         engines=tuple("scalar" if r is not None else "batched" for r in reasons),
         fallbacks=tuple(reasons),
         seconds=seconds,
@@ -848,6 +910,18 @@ def run_many(
         aba_calls=calls,
         aba_states=states,
     )
+
+
+def _simulate_one(
+    problem: Problem, integrator: object, transition: str
+) -> SimulationResult | VtmError:
+    """One run on the scalar engine; its result or the error that ended it."""
+    from .simulation import simulate
+
+    try:
+        return simulate(problem, integrator, transition=transition)  # type: ignore[arg-type]
+    except Exception as exc:
+        return _as_vtm_error(exc)
 
 
 def simulate_many(
@@ -881,6 +955,13 @@ def simulate_many(
         if isinstance(result, VtmError):
             raise result
     return list(outcome.results)  # type: ignore[arg-type]
+
+
+def _as_vtm_error(exc: Exception) -> VtmError:
+    """``exc`` as the error a run ends with (a bug says so in one line)."""
+    if isinstance(exc, VtmError):
+        return exc
+    return SimulationError(f"internal error ({type(exc).__name__}: {exc})")
 
 
 def _due(grid: _Grid | None, t_new: float) -> bool:

@@ -38,7 +38,10 @@ from .robot import Robot
 from .stop import Stop
 from .topology import Topology, full_data, reduced_model, weightless_model
 from .transitions import TRANSITIONS, TransitionResult
-from .transitions.recursive import compute_joint_lock_transition
+from .transitions.recursive import (
+    compute_joint_lock_transition,
+    compute_joint_lock_transition_dense,
+)
 
 
 class _Hybrid:
@@ -113,6 +116,9 @@ class _Hybrid:
         pure = not (frames or self.frames) and len(set(joints)) == len(joints)
         if pure and self.rule_name == "kkt" and self.reduced:
             result = self.joint_lock(joints)
+        elif pure and self.rule_name == "kkt":
+            M = compute_M(self.robot.model, self.data, self.q)
+            result = compute_joint_lock_transition_dense(M, self.v, self.locked, joints)
         else:
             result = self.transition(joints, frames, labels)
         self.events.append(

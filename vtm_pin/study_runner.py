@@ -184,12 +184,18 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
     for pair in built:
         groups.setdefault(pair[1].transition, []).append(pair)
     for transition, pairs in groups.items():
-        outcome = run_many(
-            [scenario.problem for _, scenario in pairs],
-            [scenario.integrator for _, scenario in pairs],
-            transition=transition,
-            engine=engine,
-        )
+        try:
+            outcome = run_many(
+                [scenario.problem for _, scenario in pairs],
+                [scenario.integrator for _, scenario in pairs],
+                transition=transition,
+                engine=engine,
+            )
+        except Exception as exc:
+            for record, _ in pairs:
+                _record_error(record, exc)
+                record["timing"]["report"] = 0.0
+            continue
         for (record, scenario), result, used, reason, share in zip(
             pairs, outcome.results, outcome.engines, outcome.fallbacks, outcome.shares, strict=True
         ):
@@ -456,8 +462,12 @@ BATCH_CASES = 2500
 
 
 def _chunks(tasks: Sequence[CaseTask], workers: int, engine: str) -> list[list[CaseTask]]:
-    """The tasks in the pieces a worker runs at once: single cases, or batches."""
-    size = 1 if engine == "scalar" else min(BATCH_CASES, math.ceil(len(tasks) / workers))
+    """The tasks in the pieces a worker runs at once: single cases, or batches.
+
+    Batches are a quarter of a worker's share (at most :data:`BATCH_CASES`): the workers stay
+    evenly loaded, and an interruption loses at most the batches under way.
+    """
+    size = 1 if engine == "scalar" else min(BATCH_CASES, math.ceil(len(tasks) / (4 * workers)))
     return [list(tasks[i : i + size]) for i in range(0, len(tasks), size)]
 
 

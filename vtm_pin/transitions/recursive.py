@@ -87,13 +87,59 @@ def compute_joint_lock_transition(
             "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
             "matrix is singular or too ill-conditioned for this lock"
         )
-    dv = v_plus - v_minus
-    M_dv = pin.rnea(model, data, q, zero, dv)  # M (v+ - v-)
+    M_dv = pin.rnea(model, data, q, zero, v_plus - v_minus)  # M (v+ - v-)
+    return _result(v_minus, v_plus, p_minus, M_dv, locked, free, len(locked_before))
+
+
+def compute_joint_lock_transition_dense(
+    M: np.ndarray, v_minus: np.ndarray, locked_before: Sequence[int], joints: Sequence[int]
+) -> TransitionResult:
+    """The same jump as :func:`compute_joint_lock_transition`, from the dense M.
+
+    M_ff dv_f = M_fl v-_l by a dense solve: for a small n, where forming M costs less than
+    a reduced model (the batched engine's hybrid loops). Joints locking at rest leave v
+    exactly unchanged, as in the recursive form.
+
+    Args:
+        M: Mass matrix at the event [kg m^2], shape (n, n).
+        v_minus: Velocity just before the event [rad/s], zero at ``locked_before``.
+        locked_before: Velocity indices locked before the event.
+        joints: Velocity indices locking at the event.
+    """
+    locked = [*locked_before, *joints]
+    held = set(locked)
+    free = np.array([i for i in range(len(v_minus)) if i not in held], dtype=np.intp)
+    rows = np.array(locked, dtype=np.intp)
+    p_minus = M @ v_minus
+    v_plus = np.array(v_minus, dtype=float)
+    v_plus[locked] = 0.0
+    if free.size:
+        tau = M[np.ix_(free, rows)] @ np.asarray(v_minus, dtype=float)[rows]  # M_fl v-_l
+        v_plus[free] += np.linalg.solve(M[np.ix_(free, free)], tau)
+    if not np.all(np.isfinite(v_plus)):
+        raise TransitionError(
+            "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
+            "matrix is singular or too ill-conditioned for this lock"
+        )
+    M_dv = M @ (v_plus - v_minus)
+    return _result(v_minus, v_plus, p_minus, M_dv, locked, free, len(locked_before))
+
+
+def _result(
+    v_minus: np.ndarray,
+    v_plus: np.ndarray,
+    p_minus: np.ndarray,
+    M_dv: np.ndarray,
+    locked: list[int],
+    free: np.ndarray,
+    m1: int,
+) -> TransitionResult:
+    """The transition from v+- and the momenta M v- and M (v+ - v-)."""
     p_plus = p_minus + M_dv
     return TransitionResult(
         v_plus=v_plus,
         Lambda=-M_dv[locked],
-        m1=len(locked_before),
+        m1=m1,
         energy_loss=0.5 * float(v_minus @ p_minus - v_plus @ p_plus),
         p_free_minus=p_minus[free],
         p_free_plus=p_plus[free],
