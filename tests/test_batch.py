@@ -24,7 +24,7 @@ from vtm_pin.exceptions import SimulationError, VtmError
 from vtm_pin.integrators import DOP853, RK4
 from vtm_pin.scenario import SCENARIOS_DIR
 from vtm_pin.study import find_study, load_study
-from vtm_pin.study_runner import run_study
+from vtm_pin.study_runner import format_study, run_study
 
 TOLERANCE = 1e-8
 
@@ -232,6 +232,8 @@ def test_small_study_agrees_and_counts_fallbacks(tmp_path: Path) -> None:
     assert all(value >= 0.0 for value in split.values()) and split["dynamics"] > 0.0
     assert engines["rhs_evals_total"] > 0
     assert "batched engine" in batched.summary["executor"]
+    text = format_study(batched, 1.0)
+    assert "8 cases on the scalar engine: category-1 stop (drives ramp the rates down)" in text
 
 
 @pytest.mark.slow

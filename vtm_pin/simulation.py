@@ -291,10 +291,12 @@ def hybrid_run(
 
     It yields a :class:`SegmentRequest` for every interval between events and must be sent
     the integrated :class:`~vtm_pin.integrators.Segment`; it returns the result (as the
-    value of its ``StopIteration``). The wall time it reports includes the integration of
-    its intervals, whoever did it. Without ``reduced_models`` the loop's own dynamics (brake
-    decisions, holding torques, joint-lock jumps by the dense kkt rule) use the full model
-    only, for an integrator that does not evaluate the phases' reduced models.
+    value of its ``StopIteration``). The wall time it reports runs from its start to its end,
+    so it includes the integration of its intervals, whoever did it (the batched engine
+    replaces it with the run's share of its batch). Without ``reduced_models`` the loop's
+    own dynamics (brake decisions, holding torques, joint-lock jumps by the dense kkt rule)
+    use the full model only, for an integrator that does not evaluate the phases' reduced
+    models.
 
     Raises:
         SimulationError: As :func:`simulate`.

@@ -813,6 +813,9 @@ def format_study(output: StudyOutput, elapsed: float) -> str:
         f"({output.computed} computed now, {stored} stored before; {output.summary['executor']}; "
         f"{elapsed:.1f} s)"
     ]
+    engines = output.summary.get("engines", {})
+    for reason, count in engines.get("fallbacks", {}).items():
+        lines.append(f"  {count} case{'s' if count > 1 else ''} on the scalar engine: {reason}")
     failed = output.table[output.table["status"] != "ok"]
     for _, row in failed.head(5).iterrows():
         lines.append(f"  case {row['case']}: {row['status']}")
