@@ -524,19 +524,17 @@ def _drain(
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
-                try:
-                    records = future.result()
-                except BrokenProcessPool as exc:
-                    raise StudyError(
-                        "",
-                        "",
-                        "a worker process died (out of memory, or killed); the finished cases "
-                        "are stored: run the same command again to continue",
-                    ) from exc
-                yield from records
+                yield from future.result()
                 more = next(queue, None)
                 if more is not None:
                     pending.add(executor.submit(run_cases, more, engine))
+    except BrokenProcessPool as exc:  # from a result, or from submitting to the broken pool
+        raise StudyError(
+            "",
+            "",
+            "a worker process died (out of memory, or killed); the finished cases are stored: "
+            "run the same command again to continue",
+        ) from exc
     finally:
         executor.shutdown(wait=False, cancel_futures=True)
 
