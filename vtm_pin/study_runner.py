@@ -140,11 +140,6 @@ class StudyOutput:
 _ROBOTS = RobotCache()
 
 
-def run_case(task: CaseTask) -> dict[str, Any]:
-    """Run one case with the scalar engine; its record (see :func:`run_cases`)."""
-    return run_cases([task], "scalar")[0]
-
-
 def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[str, Any]]:
     """Run cases; returns their records (JSON-ready), in order. Never raises for a case.
 
