@@ -301,9 +301,9 @@ class BatchEngine:
                     try:
                         segment = request.integrate()
                     except Exception as exc:
-                        self._advance(run, error=_as_vtm_error(exc))
+                        self.advance(run, error=_as_vtm_error(exc))
                     else:
-                        self._advance(run, segment)
+                        self.advance(run, segment)
                     again.append(b)
                     continue
                 self._load(lanes, b, run)
@@ -607,7 +607,7 @@ class BatchEngine:
                 try:
                     tau, index = self._locate(lanes, run, int(b), F[i], float(part.h[i]), fired[i])
                 except Exception as exc:
-                    self._advance(run, error=_as_vtm_error(exc))
+                    self.advance(run, error=_as_vtm_error(exc))
                     continue
                 until = t + tau - (run.grid.slack if run.grid is not None else 0.0)
                 count = _grid_times(run.grid, until, times)
@@ -731,9 +731,9 @@ class BatchEngine:
             holding=hold,
         )
         run.ts, run.ys, run.holds = [], [], []
-        self._advance(run, segment)
+        self.advance(run, segment)
 
-    def _advance(
+    def advance(
         self, run: _Run, segment: Segment | None = None, error: VtmError | None = None
     ) -> None:
         """Hand a run its segment (or error), timing its hybrid loop."""
@@ -745,7 +745,7 @@ class BatchEngine:
         self, lanes: _Lanes, runs: Sequence[_Run], b: int, error: VtmError, finished: list[int]
     ) -> None:
         lanes.running[b] = False
-        self._advance(runs[b], error=error)
+        self.advance(runs[b], error=error)
         finished.append(int(b))
 
     def _step_limit(self, lanes: _Lanes, b: int) -> StepLimitError:
@@ -879,7 +879,7 @@ def run_many(
         ]
         batch = BatchEngine(problems[indices[0]].robot.model, integrator, threads)  # type: ignore[arg-type]
         for run in runs:
-            batch._advance(run)
+            batch.advance(run)
         try:
             batch.run(runs)
         except Exception as exc:
