@@ -133,10 +133,9 @@ class Topology:
     def rhs(self, t: float, y: np.ndarray) -> np.ndarray:
         """Time derivative of the free state, (v_f, a_f) from ABA on the reduced model."""
         k = self._k
-        out = np.empty(2 * k)
         if k == 0:
-            return out
-        model, data = (self._model, self._data) if self._model is not None else self._build()
-        out[:k] = y[k:]
-        out[k:] = pin.aba(model, data, y[:k], y[k:], self._tau)
-        return out
+            return np.empty(0)
+        if self._model is None:
+            self._build()
+        v = y[k:]
+        return np.concatenate((v, pin.aba(self._model, self._data, y[:k], v, self._tau)))

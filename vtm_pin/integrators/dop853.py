@@ -32,7 +32,6 @@ _S = coef.N_STAGES  # 12 stages; K[12] is f at the step end (first same as last)
 _A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
 _E3, _E5, _D = coef.E3, coef.E5, coef.D
 _A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
-_STAGES = [(s, np.ascontiguousarray(_A[s, :s]), float(_C[s])) for s in range(1, _S)]
 _N_EXTRA = _A_EXTRA.shape[0]  # 3 more evaluations of f for the dense output of a step
 
 #: Output times closer than this fraction of ``output_dt`` to an interval's start or end are
@@ -98,7 +97,8 @@ class DOP853:
             return Segment(
                 t=np.array(times), y=np.zeros((len(times), y0.size)) + y0, rhs_evals=0, n_steps=1
             )
-        K = np.empty((_S + 1 + _N_EXTRA, y0.size))
+        work = _Work(y0.size)
+        K = work.K
         ts, ys = [t0], [y0]
         t, y = t0, y0
         fy = f(t, y)
@@ -114,7 +114,7 @@ class DOP853:
             last = t + h >= t1 - 1e-14 * max(1.0, abs(t1))
             if last:
                 h = t1 - t
-            y_new, f_new, err = self._step(f, t, y, fy, h, K)
+            y_new, f_new, err = self._step(f, t, y, fy, h, work)
             evals += _S
             if not err <= 1.0:  # also a NaN error: a step through non-finite derivatives
                 h *= max(_MIN_FACTOR, _SAFETY * err**_EXPONENT) if math.isfinite(err) else 0.2
@@ -194,14 +194,23 @@ class DOP853:
         return min(100.0 * h0, h1, span, self.max_step), 1
 
     def _step(
-        self, f: Rhs, t: float, y: np.ndarray, fy: np.ndarray, h: float, K: np.ndarray
+        self, f: Rhs, t: float, y: np.ndarray, fy: np.ndarray, h: float, work: _Work
     ) -> tuple[np.ndarray, np.ndarray, float]:
         """One step: new state, f at it, and the scaled error norm (<= 1 to accept)."""
-        # ndarray.dot rather than @: the same BLAS products (bit for bit), less call overhead.
+        # scipy's order of operations, y + (A[s] @ K) h, so that the steps are its steps to
+        # round-off; ndarray.dot rather than @ (the same BLAS products, less call overhead).
+        # (An array of h: NumPy multiplies by an array faster than by a float, bit for bit.)
+        K, hv = work.K, work.h
         K[0] = fy
-        for s, a, c in _STAGES:
-            K[s] = f(t + c * h, y + h * a.dot(K[:s]))
-        y_new = y + h * _B.dot(K[:_S])
+        hv.fill(h)
+        for a, before, k, c in work.stages:
+            dy = a.dot(before)
+            dy *= hv
+            dy += y
+            k[:] = f(t + c * h, dy)
+        y_new = _B.dot(K[:_S])
+        y_new *= hv
+        y_new += y
         f_new = f(t + h, y_new)
         K[_S] = f_new
         scale = self._scale(y, y_new)
@@ -243,6 +252,22 @@ class DOP853:
             return y + out
 
         return dense
+
+
+class _Work:
+    """The stages of one interval's steps, with each stage's operands sliced once.
+
+    Args:
+        size: Length of the state.
+    """
+
+    def __init__(self, size: int) -> None:
+        self.K = np.empty((_S + 1 + _N_EXTRA, size))
+        self.h = np.empty(size)
+        self.stages = [
+            (np.ascontiguousarray(_A[s, :s]), self.K[:s], self.K[s], float(_C[s]))
+            for s in range(1, _S)
+        ]
 
 
 class _Grid:
