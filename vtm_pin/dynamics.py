@@ -7,6 +7,7 @@ coordinates f follow the reduced equations M_ff a_f = tau_f - b_f.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -16,8 +17,16 @@ import scipy.linalg
 
 def compute_M(model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
     """Joint-space mass matrix, armature included [kg m^2], shape (nv, nv), symmetric."""
-    upper = pin.crba(model, data, q)
-    return np.triu(upper) + np.triu(upper, 1).T
+    M = np.array(pin.crba(model, data, q))  # CRBA fills the upper triangle
+    lower = _lower_triangle(model.nv)
+    M[lower] = M.T[lower]
+    return M
+
+
+@functools.lru_cache(maxsize=32)
+def _lower_triangle(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices below the diagonal of an n x n matrix."""
+    return np.tril_indices(n, -1)
 
 
 def compute_bias(model: pin.Model, data: pin.Data, q: np.ndarray, v: np.ndarray) -> np.ndarray:
