@@ -192,16 +192,30 @@ class Phase:
         tau_drive, tau_brake = self.torques(t, y[:k], y[k : 2 * k])
         free = self.topology.free
         if self.full:
-            q, v = self.topology.merge(y[: 2 * k])
-            model, data = self.robot.model, self._full_data
-            M = compute_M(model, data, q)[np.ix_(free, free)]
-            b = pin.nonLinearEffects(model, data, q, v)[free]
-            a[free] = np.linalg.solve(M, tau_drive + tau_brake - b)
+            M, b = self._mass_and_bias(*self.topology.merge(y[: 2 * k]))
+            a[free] = np.linalg.solve(M[np.ix_(free, free)], tau_drive + tau_brake - b[free])
         else:
             a[free] = pin.aba(
                 self.topology.model, self.topology.data, y[:k], y[k : 2 * k], tau_drive + tau_brake
             )
         return a
+
+    def _mass_and_bias(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """M and b of the full model at (q, v), read only; kept for the last state asked.
+
+        The brakes' trial phases of one instant share the state, so each of their holding
+        torques reuses the one CRBA and RNEA.
+        """
+        memo = self.robot.cache.get("mass_and_bias", _LastState)
+        hit = memo.last
+        if hit is not None and np.array_equal(hit[0], q) and np.array_equal(hit[1], v):
+            return hit[2], hit[3]
+        model, data = self.robot.model, self._full_data
+        M = compute_M(model, data, q)
+        b = np.array(pin.nonLinearEffects(model, data, q, v))
+        M.flags.writeable = b.flags.writeable = False
+        memo.last = (q.copy(), v.copy(), M, b)
+        return M, b
 
     def holding_torque(self, t: float, y: np.ndarray) -> np.ndarray:
         """Torque the locks must exert on every joint to keep the locked ones still [N m].
@@ -215,9 +229,20 @@ class Phase:
             return last[2].copy()
         q, v = self.topology.merge(y[: 2 * self.k])
         a = self.accelerations(t, y)
-        tau = pin.rnea(self.robot.model, self._full_data, q, v, a)
-        out = np.zeros(self.robot.nv)
         locked = self.topology.locked_index
-        out[locked] = tau[locked]
+        if self.full:  # M a + b at the locked joints, from the terms the accelerations used
+            M, b = self._mass_and_bias(q, v)
+            tau = M[locked].dot(a) + b[locked]
+        else:
+            tau = pin.rnea(self.robot.model, self._full_data, q, v, a)[locked]
+        out = np.zeros(self.robot.nv)
+        out[locked] = tau
         self._last_hold = (t, y.copy(), out.copy())
         return out
+
+
+class _LastState:
+    """The last (q, v, M, b) of :meth:`Phase._mass_and_bias` (one tuple: replaced whole)."""
+
+    def __init__(self) -> None:
+        self.last: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
