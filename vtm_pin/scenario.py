@@ -609,7 +609,7 @@ def build_scenario(
         assumptions.append(describe_payload(payload, payload.frame))
     q0, v0, test_state = _initial_state(raw, robot, tool_frame, source, assumptions)
 
-    integrator = build_integrator(raw.get("integrator", {}), duration, source)
+    integrator = _integrator(raw.get("integrator", {}), duration, source)  # schema checked
 
     names: dict[str, str] = {}
     constraints = tuple(
@@ -772,6 +772,11 @@ def build_integrator(spec: Mapping[str, Any], duration: float, source: str = "")
             ``max_steps`` steps (an output of more than ``max_steps`` samples).
     """
     check_schema(spec, SCHEMA["properties"]["integrator"], source, ScenarioError, "integrator")
+    return _integrator(spec, duration, source)
+
+
+def _integrator(spec: Mapping[str, Any], duration: float, source: str) -> Integrator:
+    """:func:`build_integrator` of a ``spec`` that the schema check has passed."""
     method = spec.get("method", "rk4")
     max_steps = int(spec.get("max_steps", DEFAULT_MAX_STEPS))
     if method not in FIXED_STEP:
