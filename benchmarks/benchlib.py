@@ -38,7 +38,7 @@ from vtm_pin.transitions.recursive import compute_joint_lock_transition, weightl
 LADDERS: dict[str, list[float]] = {
     "rk4": [1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4],
     "euler": [1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5],
-    "dop853": [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12],
+    "dop853": [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12],
 }
 #: Relative tolerance of the DOP853 reference solution [-].
 REFERENCE_RTOL = 1e-13
