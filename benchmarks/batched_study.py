@@ -6,7 +6,7 @@ command (process start, cases, table, graphs and report), the cases per second, 
 batched engine's speed-up. From the study's ``summary.json`` it splits the time: the
 per-case model build (scenario, payload, Annex-B pose) and report (stopping figures), and the
 batched engine's own split, summed over the workers (:data:`vtm_pin.batch.PARTS`: Pinocchio
-calls with the Schur complements, the runs' hybrid loops, event location, vectorised
+calls with the solves of locked runs, the runs' hybrid loops, event location, vectorised
 stepping). It also prints the wall time per right-hand-side evaluation of the whole command,
 against the 0.86 us per state that ``pinocchio.abaInParallel`` reaches on 2 threads here.
 

@@ -1,7 +1,7 @@
 """The batched engine: the same runs as the scalar engine, to 1e-8, with fallbacks counted.
 
 Agreement tolerance: 1e-8 (rad, rad/s, s, m, N m), the issue's. Both engines take the same
-dop853 steps; they differ only in round-off (a Schur complement on the full model instead of
+dop853 steps; they differ only in round-off (M_ff a_f = tau_f - b_f on the full model instead of
 ABA on the reduced one, sums in another order), measured at 1e-10 and below on the shipped
 studies. Holding torques are compared relative to their size (up to 1e4 N m).
 """

@@ -6,17 +6,20 @@ Only the integration between events is shared: the intervals that the runs ask f
 together by one vectorised Dormand-Prince 8(5,3), the same method, step control, event
 location and dense output as :class:`~vtm_pin.integrators.DOP853`, so a run's steps are the
 scalar engine's up to round-off. Each Runge-Kutta stage evaluates the dynamics of every run
-of one model in one ``pinocchio.abaInParallel`` call.
+of one model in at most three batched calls: ``pinocchio.abaInParallel`` for the runs without
+locks, ``pinocchio.rneaInParallel`` twice for those with.
 
 A run whose phase has joints locked is not given a reduced model (that would be one model per
-run and per lock angle). Its free accelerations come from the full model instead, corrected
-by a Schur complement: with L the locked joints and a0 = ABA(q, v, tau) (v_L = 0),
+run and per lock angle). Its free accelerations come from the full model instead: with L the
+locked joints and f the free ones (v_L = 0, a_L = 0),
 
-.. math:: (M^{-1})_{LL}\, \lambda = -a_{0,L}, \qquad a = a_0 + M^{-1} E_L \lambda,
+.. math:: M_{ff}\, a_f = \tau_f - b_f, \qquad \lambda_L = M_{Lf}\, a_f + b_L - \tau_L,
 
-where the columns M^-1 e_i come from further batched ABA passes on the model without gravity
-at zero velocity with tau = e_i. The multipliers lambda are the locks' holding torques, which
-the brakes' slip events and the results need.
+where b = RNEA(q, v, 0) and the free columns M e_j come from one batched RNEA call on the
+model without gravity at zero velocity with a = e_j, over every (run, free joint) pair. That
+is 1 + k RNEA passes (about half an ABA each) for k free joints; in a stop most joints are
+locked, where the k x k solve is small. The multipliers lambda are the locks' holding
+torques, which the brakes' slip events and the results need.
 
 What the batched engine steps: intervals without frame constraints or acting drives, with
 Coulomb brakes (and ideal locks, which are transitions, not dynamics), integrated by dop853.
@@ -39,7 +42,7 @@ from .exceptions import SimulationError, StepLimitError, VtmError
 from .friction import Coulomb
 from .integrators import DOP853, Segment
 from .integrators import dop853_coefficients as coef
-from .integrators.dop853 import _EXPONENT, _MAX_FACTOR, _MIN_FACTOR, _SAFETY, _Grid
+from .integrators.dop853 import _EXPONENT, _MAX_FACTOR, _MIN_FACTOR, _SAFETY, _Grid, dense_weights
 from .integrators.fixed_step import locate
 from .problem import Problem
 from .results import SimulationResult
@@ -47,9 +50,9 @@ from .simulation import SegmentRequest, hybrid_run
 from .transitions.recursive import weightless
 
 ENGINES = ("batched", "scalar")
-#: Where a batch's wall time goes: the Pinocchio calls with the Schur complements, the runs'
-#: hybrid loops (brake decisions, locks, traces), event location on the dense output, and
-#: the rest: the vectorised step control and dense output in NumPy (and the batch's set-up:
+#: Where a batch's wall time goes: the Pinocchio calls with the small solves of locked runs,
+#: the runs' hybrid loops (brake decisions, locks, traces), event location on the dense
+#: output, and the rest: the vectorised step control and dense output in NumPy (and the batch's set-up:
 #: its Pinocchio model pools).
 PARTS = ("dynamics", "hybrid", "location", "stepping")
 
@@ -101,7 +104,7 @@ def model_key(model: pin.Model) -> bytes:
 
 
 class _Dynamics:
-    """Batched dynamics of one model: ABA with locks by a Schur complement, holding torques.
+    """Batched dynamics of one model: ABA, or with locks M_ff a_f = tau_f - b_f; holding torques.
 
     Args:
         model: The full model (armature included).
@@ -113,16 +116,18 @@ class _Dynamics:
         self.threads = threads
         self.pool = pin.ModelPool(model, threads)
         self.weightless = pin.ModelPool(weightless(model), threads)
-        self.aba_calls = 0
-        self.aba_states = 0
+        #: Batched Pinocchio calls made, and the states they evaluated.
+        self.calls = 0
+        self.states = 0
 
-    def _aba(
-        self, pool: pin.ModelPool, q: np.ndarray, v: np.ndarray, tau: np.ndarray
+    def _call(
+        self, algorithm: object, pool: pin.ModelPool, q: np.ndarray, v: np.ndarray, x: np.ndarray
     ) -> np.ndarray:
-        self.aba_calls += 1
-        self.aba_states += len(q)
-        a = pin.abaInParallel(self.threads, pool, q.T, v.T, tau.T)
-        return np.asarray(a).reshape(self.n, len(q)).T
+        """``pin.abaInParallel`` or ``pin.rneaInParallel`` on rows of states."""
+        self.calls += 1
+        self.states += len(q)
+        out = algorithm(self.threads, pool, q.T, v.T, x.T)  # type: ignore[operator]
+        return np.asarray(out).reshape(self.n, len(q)).T
 
     def accelerations(
         self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, locked: np.ndarray
@@ -135,26 +140,37 @@ class _Dynamics:
             tau: Applied torques, shape (B, n), 0 at locked joints.
             locked: Lock masks, shape (B, n).
         """
-        a = self._aba(self.pool, q, v, tau)
-        lam = np.zeros_like(a)
-        rows = np.flatnonzero(locked.any(axis=1))
-        if rows.size == 0:
-            return a, lam
+        a = np.zeros_like(q)
+        lam = np.zeros_like(q)
+        held = locked.any(axis=1)
+        rows = np.flatnonzero(~held)
+        if rows.size:
+            a[rows] = self._call(pin.abaInParallel, self.pool, q[rows], v[rows], tau[rows])
+        rows = np.flatnonzero(held)
+        if rows.size:
+            a[rows], lam[rows] = self._locked(q[rows], v[rows], tau[rows], locked[rows])
+        return a, lam
+
+    def _locked(
+        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, locked: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`accelerations` of states with locks, from M's free columns and b by RNEA."""
         n = self.n
-        mask = locked[rows]
-        lane, joint = np.nonzero(mask)  # one weightless ABA per (run, locked joint), one call
+        free = ~locked
+        b = self._call(pin.rneaInParallel, self.pool, q, v, np.zeros_like(q))
+        lane, joint = np.nonzero(free)  # one weightless RNEA per (state, free joint), one call
         unit = np.zeros((lane.size, n))
         unit[np.arange(lane.size), joint] = 1.0
-        columns = np.zeros((rows.size, n, n))  # columns[b, :, i] = M^-1 e_i where i is locked
-        columns[lane, :, joint] = self._aba(self.weightless, q[rows[lane]], unit * 0.0, unit)
-        both = mask[:, :, None] & mask[:, None, :]
-        schur = np.where(both, columns, 0.0) + np.where(mask, 0.0, 1.0)[:, :, None] * np.eye(n)
-        a0 = a[rows]
-        lam_rows = np.linalg.solve(schur, np.where(mask, -a0, 0.0)[:, :, None])[:, :, 0]
-        a_rows = a0 + np.einsum("bij,bj->bi", columns, lam_rows)
-        a_rows[mask] = 0.0
-        a[rows] = a_rows
-        lam[rows] = lam_rows
+        columns = np.zeros((len(q), n, n))  # columns[r, :, j] = M e_j where j is free
+        columns[lane, :, joint] = self._call(
+            pin.rneaInParallel, self.weightless, q[lane], unit * 0.0, unit
+        )
+        both = free[:, :, None] & free[:, None, :]
+        system = np.where(both, columns, 0.0) + locked[:, :, None] * np.eye(n)
+        a = np.linalg.solve(system, np.where(free, tau - b, 0.0)[:, :, None])[:, :, 0]
+        a[locked] = 0.0
+        lam = np.einsum("rij,rj->ri", columns, a) + b - tau
+        lam[free] = 0.0
         return a, lam
 
 
@@ -246,7 +262,7 @@ class BatchEngine:
         self.dynamics = _Dynamics(model, threads)
         self.integrator = integrator
         self.n = model.nv
-        #: Wall time [s] in the dynamics (Pinocchio calls and Schur complements), the runs'
+        #: Wall time [s] in the dynamics (Pinocchio calls and the solves of locked runs), the runs'
         #: hybrid loops (brake decisions, locks, traces) and event location.
         self.seconds = dict.fromkeys(PARTS[:3], 0.0)
 
@@ -684,15 +700,10 @@ class BatchEngine:
         request = run.request
         assert request is not None
         reduced = run.reduced
-        y, Fr = lanes.y[b, reduced], F[::-1, reduced]
+        y, Fr = lanes.y[b, reduced], np.ascontiguousarray(F[:, reduced])
 
         def dense(tau: float) -> np.ndarray:  # DOP853's continuous extension, as it has it
-            x = tau / h
-            out = np.zeros_like(y)
-            for i, row in enumerate(Fr):
-                out += row
-                out *= x if i % 2 == 0 else 1.0 - x
-            return y + out
+            return y + dense_weights(tau / h).dot(Fr)
 
         events = [e.event for e in request.phase.events]
         indices = sorted(int(lanes.event_index[b, j]) for j in np.flatnonzero(fired))
@@ -816,8 +827,8 @@ class BatchOutcome:
         fallbacks: Per run, why it went to the scalar engine (None if batched).
         seconds: Wall time [s]: ``total``, and the batched engine's split (:data:`PARTS`).
         shares: Per batched run, its share of its batch's split [s]; None if scalar.
-        aba_calls: Batched ABA calls made.
-        aba_states: States they evaluated.
+        calls: Batched Pinocchio calls (ABA, RNEA) made.
+        states: States they evaluated.
     """
 
     results: tuple[SimulationResult | VtmError, ...]
@@ -825,8 +836,8 @@ class BatchOutcome:
     fallbacks: tuple[str | None, ...]
     seconds: dict[str, float]
     shares: tuple[dict[str, float] | None, ...]
-    aba_calls: int
-    aba_states: int
+    calls: int
+    states: int
 
 
 def run_many(
@@ -898,8 +909,8 @@ def run_many(
             shares[run.index] = share
         for name, value in parts.items():
             seconds[name] += value
-        calls += batch.dynamics.aba_calls
-        states += batch.dynamics.aba_states
+        calls += batch.dynamics.calls
+        states += batch.dynamics.states
     seconds["total"] = time.perf_counter() - begin
     assert all(r is not None for r in results)
     return BatchOutcome(
@@ -908,8 +919,8 @@ def run_many(
         fallbacks=tuple(reasons),
         seconds=seconds,
         shares=tuple(shares),
-        aba_calls=calls,
-        aba_states=states,
+        calls=calls,
+        states=states,
     )
 
 
