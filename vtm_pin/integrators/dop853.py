@@ -244,14 +244,23 @@ class DOP853:
         F[3:] = h * (_D @ K)
 
         def dense(tau: float) -> np.ndarray:
-            x = tau / h
-            out = np.zeros_like(y)
-            for i, row in enumerate(F[::-1]):
-                out += row
-                out *= x if i % 2 == 0 else 1.0 - x
-            return y + out
+            return y + dense_weights(tau / h).dot(F)
 
         return dense
+
+
+def dense_weights(x: float) -> np.ndarray:
+    """Weights w of a step's dense output y + w @ F at the fraction x = tau / h of the step.
+
+    The 7th-order interpolant is y + x (F0 + (1 - x) (F1 + x (F2 + (1 - x) (F3 + ...)))):
+    w = (x, x (1 - x), x^2 (1 - x), x^2 (1 - x)^2, ...), products of floats, then one product
+    with F instead of seven array operations.
+    """
+    w, acc = [], 1.0
+    for j in range(coef.INTERPOLATOR_POWER):
+        acc *= x if j % 2 == 0 else 1.0 - x
+        w.append(acc)
+    return np.array(w)
 
 
 class _Work:
