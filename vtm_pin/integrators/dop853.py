@@ -16,6 +16,7 @@ the solution) is the same as without it, and the last sample is still the state 
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -33,6 +34,9 @@ _A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
 _E3, _E5, _D = coef.E3, coef.E5, coef.D
 _A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
 _N_EXTRA = _A_EXTRA.shape[0]  # 3 more evaluations of f for the dense output of a step
+
+#: Per thread, the stage buffers of each state size (:func:`_work`).
+_WORK = threading.local()
 
 #: Output times closer than this fraction of ``output_dt`` to an interval's start or end are
 #: that start or end (a grid time that is an event time up to round-off, 0.08 vs 80 x 0.001).
@@ -97,7 +101,7 @@ class DOP853:
             return Segment(
                 t=np.array(times), y=np.zeros((len(times), y0.size)) + y0, rhs_evals=0, n_steps=1
             )
-        work = _Work(y0.size)
+        work = _work(y0.size)
         K = work.K
         ts, ys = [t0], [y0]
         t, y = t0, y0
@@ -261,6 +265,15 @@ def dense_weights(x: float) -> np.ndarray:
         acc *= x if j % 2 == 0 else 1.0 - x
         w.append(acc)
     return np.array(w)
+
+
+def _work(size: int) -> _Work:
+    """This thread's stage buffers for states of ``size`` (an interval uses them alone)."""
+    cache = _WORK.__dict__
+    work = cache.get(size)
+    if work is None:
+        work = cache[size] = _Work(size)
+    return work
 
 
 class _Work:
