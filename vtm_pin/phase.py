@@ -98,7 +98,9 @@ class Phase:
     def unpack_extras(self, y: np.ndarray, extras: np.ndarray) -> np.ndarray:
         """Accumulators at the states ``y`` (rows), given their value at the phase start."""
         if self.passive:
-            return np.broadcast_to(extras, (*y.shape[:-1], extras.size))
+            if y.ndim == 1:
+                return extras.copy()
+            return np.repeat(extras[None], len(y), axis=0)
         return y[..., 2 * self.k :]
 
     def torques(self, t: float, q_f: np.ndarray, v_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -493,8 +493,8 @@ class _Trace:
             t=segment.t,
             q=q,
             v=v,
-            free=np.broadcast_to(mask, (size, n)),
-            modes=np.broadcast_to(np.array(h.machine.modes, dtype=np.int8), (size, n)),
+            free=np.repeat(mask[None], size, axis=0),
+            modes=np.repeat(np.array(h.machine.modes, dtype=np.int8)[None], size, axis=0),
             extras=extras,
             hold=hold,
             drift=phase.constraint_drift(segment.y),
@@ -563,9 +563,8 @@ def _check_energy(
         q_start, _ = phase.topology.merge(y[0, : 2 * phase.k])
         new = [f for f in h.frames if f.name in last.activate]
         check_activation(new, h.robot.model, h.data, q_start, float(t[0]))
-    finite = np.all(np.isfinite(y), axis=1)
-    if not np.all(finite):
-        row = int(np.argmin(finite))
+    if not np.isfinite(y).all():
+        row = int(np.argmin(np.isfinite(y).all(axis=1)))
         bad = np.flatnonzero(~np.isfinite(y[row, : 2 * phase.k])) % max(phase.k, 1)
         names = dict.fromkeys(h.robot.joints[phase.topology.free[i]] for i in bad)
         raise SimulationError(
