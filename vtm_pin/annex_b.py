@@ -501,14 +501,15 @@ class _Evaluator:
         origin = (self.data.oMi[model.parents[joint]] * model.jointPlacements[joint]).translation
         # The plane's origin moves only with joint 1, which stays put: its height is constant.
         self.plane_height = float(chain.axis @ (origin - chain.point))
-        self._x: np.ndarray | None = None
+        self._key: bytes | None = None
         self.r = self.h = 0.0
         self.dr = self.dh = np.zeros(len(chain.free))
         self.at(self.q[chain.free])
 
     def at(self, x: np.ndarray) -> _Evaluator:
         """Evaluate at free-joint values ``x`` [rad or m] (kept while ``x`` does not change)."""
-        if self._x is not None and np.array_equal(x, self._x):
+        key = np.asarray(x, dtype=float).tobytes()  # exact, and cheaper than comparing arrays
+        if key == self._key:
             return self
         chain = self.chain
         self.q[chain.free] = x
@@ -521,7 +522,7 @@ class _Evaluator:
         self.h = along - self.plane_height
         self.dr = (radial / self.r) @ Jf if self.r > 0.0 else np.zeros(len(x))
         self.dh = chain.axis @ Jf
-        self._x = np.array(x, dtype=float)
+        self._key = key
         return self
 
     def reach(self) -> float:
