@@ -195,7 +195,7 @@ class Phase:
         free = self.topology.free
         if self.full:
             M, b = self._mass_and_bias(*self.topology.merge(y[: 2 * k]))
-            a[free] = np.linalg.solve(M[np.ix_(free, free)], tau_drive + tau_brake - b[free])
+            a[free] = np.linalg.solve(M[free][:, free], tau_drive + tau_brake - b[free])
         else:
             a[free] = pin.aba(
                 self.topology.model, self.topology.data, y[:k], y[k : 2 * k], tau_drive + tau_brake

@@ -112,10 +112,11 @@ def compute_joint_lock_transition_dense(
     rows = np.array(locked, dtype=np.intp)
     p_minus = M @ v_minus
     v_plus = np.array(v_minus, dtype=float)
+    v_l = v_plus[rows]
     v_plus[locked] = 0.0
-    if free.size:
-        tau = M[np.ix_(free, rows)] @ np.asarray(v_minus, dtype=float)[rows]  # M_fl v-_l
-        v_plus[free] += np.linalg.solve(M[np.ix_(free, free)], tau)
+    if free.size and v_l.any():  # joints locking at rest: no jump, no solve
+        tau = M[free][:, rows] @ v_l  # M_fl v-_l
+        v_plus[free] += np.linalg.solve(M[free][:, free], tau)
     if not np.all(np.isfinite(v_plus)):
         raise TransitionError(
             "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
