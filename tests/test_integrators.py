@@ -194,3 +194,23 @@ def test_dop853_tables_are_scipys_to_the_last_bit():
         np.testing.assert_array_equal(getattr(tables, name), getattr(scipy_tables, name), name)
     for name in ("N_STAGES", "N_STAGES_EXTENDED", "INTERPOLATOR_POWER"):
         assert getattr(tables, name) == getattr(scipy_tables, name)
+
+
+def test_dop853_nested_in_a_right_hand_side_keeps_its_own_stages():
+    """An integration inside f (same thread, same state size) leaves the outer one exact.
+
+    The stage buffers are reused per thread; a nested interval must get buffers of its own,
+    so the outer result is bit for bit the one without nesting.
+    """
+    it = DOP853(rtol=1e-10, atol=1e-12)
+
+    def f(t, y):
+        return np.array([y[1], -y[0]])
+
+    def f_nested(t, y):
+        it.integrate(f, 0.0, np.array([0.3, 0.7]), 0.01)
+        return f(t, y)
+
+    plain = it.integrate(f, 0.0, np.array([1.0, 0.0]), 3.0)
+    nested = it.integrate(f_nested, 0.0, np.array([1.0, 0.0]), 3.0)
+    assert np.array_equal(plain.t, nested.t) and np.array_equal(plain.y, nested.y)

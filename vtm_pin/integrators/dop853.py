@@ -15,9 +15,10 @@ the solution) is the same as without it, and the last sample is still the state 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,8 +36,8 @@ _E3, _E5, _D = coef.E3, coef.E5, coef.D
 _A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
 _N_EXTRA = _A_EXTRA.shape[0]  # 3 more evaluations of f for the dense output of a step
 
-#: Per thread, the stage buffers of each state size (:func:`_work`).
-_WORK = threading.local()
+#: Per thread, the free stage buffers of each state size (:func:`_borrow`).
+_FREE = threading.local()
 
 #: Output times closer than this fraction of ``output_dt`` to an interval's start or end are
 #: that start or end (a grid time that is an event time up to round-off, 0.08 vs 80 x 0.001).
@@ -101,7 +102,20 @@ class DOP853:
             return Segment(
                 t=np.array(times), y=np.zeros((len(times), y0.size)) + y0, rhs_evals=0, n_steps=1
             )
-        work = _work(y0.size)
+        with _borrow(y0.size) as work:
+            return self._integrate(f, t0, y0, t1, events, grid, work)
+
+    def _integrate(
+        self,
+        f: Rhs,
+        t0: float,
+        y0: np.ndarray,
+        t1: float,
+        events: Sequence[StateEvent],
+        grid: _Grid | None,
+        work: _Work,
+    ) -> Segment:
+        """:meth:`integrate` of an interval in which something moves, with its buffers."""
         K = work.K
         ts, ys = [t0], [y0]
         t, y = t0, y0
@@ -267,13 +281,20 @@ def dense_weights(x: float) -> np.ndarray:
     return np.array(w)
 
 
-def _work(size: int) -> _Work:
-    """This thread's stage buffers for states of ``size`` (an interval uses them alone)."""
-    cache = _WORK.__dict__
-    work = cache.get(size)
-    if work is None:
-        work = cache[size] = _Work(size)
-    return work
+@contextlib.contextmanager
+def _borrow(size: int) -> Iterator[_Work]:
+    """Stage buffers for states of ``size``: this thread's free ones, else new ones.
+
+    An interval holds them until it ends, so an integration nested in a right-hand side or an
+    event function gets buffers of its own.
+    """
+    free: dict[int, list[_Work]] = _FREE.__dict__.setdefault("by_size", {})
+    stack = free.setdefault(size, [])
+    work = stack.pop() if stack else _Work(size)
+    try:
+        yield work
+    finally:
+        stack.append(work)
 
 
 class _Work:
