@@ -13,13 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pinocchio as pin
 import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import vtm_pin as vp
-from vtm_pin.batch import fallback_reason, model_key, run_many, simulate_many
+from vtm_pin.batch import _Dynamics, fallback_reason, model_key, run_many, simulate_many
+from vtm_pin.dynamics import compute_M
 from vtm_pin.exceptions import SimulationError, VtmError
 from vtm_pin.integrators import DOP853, RK4
 from vtm_pin.scenario import SCENARIOS_DIR
@@ -242,3 +244,42 @@ def test_shipped_studies_agree(name: str, tmp_path: Path) -> None:
     """Every case of the shipped studies: the batched table equals the scalar one to 1e-8."""
     scalar, batched = run_both(find_study(name), tmp_path, workers=2)
     assert_same_table(scalar.table, batched.table)
+
+
+#: Relative agreement of the batched locked-case dynamics with the dense reference [-]: both
+#: solve M_ff a_f = tau_f - b_f exactly up to round-off (measured 1e-14 on the UR10).
+DYNAMICS_TOLERANCE = 1e-10
+
+
+def test_batched_dynamics_with_locks_equal_the_reduced_equations() -> None:
+    """a_f from M_ff a_f = tau_f - b_f and holding torques lambda_L = (RNEA(q, v, a))_L.
+
+    Random UR10 states and lock masks, with a lane without locks, one with every joint
+    locked and one with a single free joint; then a batch of all-locked lanes alone.
+    """
+    robot = vp.load_robot("ur10")
+    model, n = robot.model, robot.nv
+    data = model.createData()
+    dynamics = _Dynamics(model, threads=1)
+    rng = np.random.default_rng(14)
+    B = 60
+    q = rng.uniform(-3.0, 3.0, (B, n))
+    v = rng.uniform(-2.0, 2.0, (B, n))
+    tau = rng.uniform(-50.0, 50.0, (B, n))
+    locked = rng.random((B, n)) < 0.5
+    locked[0], locked[1], locked[2] = False, True, True
+    locked[2, 3] = False
+    v[locked] = tau[locked] = 0.0
+    a, lam = dynamics.accelerations(q, v, tau, locked)
+    for i in range(B):
+        free = np.flatnonzero(~locked[i])
+        M = compute_M(model, data, q[i])
+        b = pin.nonLinearEffects(model, data, q[i], v[i])
+        a_ref = np.zeros(n)
+        a_ref[free] = np.linalg.solve(M[np.ix_(free, free)], tau[i, free] - b[free])
+        lam_ref = np.where(locked[i], pin.rnea(model, data, q[i], v[i], a_ref), 0.0)
+        assert np.abs(a[i] - a_ref).max() <= DYNAMICS_TOLERANCE * (1.0 + np.abs(a_ref).max())
+        assert np.abs(lam[i] - lam_ref).max() <= DYNAMICS_TOLERANCE * (1.0 + np.abs(lam_ref).max())
+    a1, lam1 = dynamics.accelerations(q[1:2], v[1:2], tau[1:2], locked[1:2])
+    assert not a1.any()
+    assert np.allclose(lam1, lam[1:2], rtol=DYNAMICS_TOLERANCE, atol=0.0)

@@ -52,8 +52,8 @@ from .transitions.recursive import weightless
 ENGINES = ("batched", "scalar")
 #: Where a batch's wall time goes: the Pinocchio calls with the small solves of locked runs,
 #: the runs' hybrid loops (brake decisions, locks, traces), event location on the dense
-#: output, and the rest: the vectorised step control and dense output in NumPy (and the batch's set-up:
-#: its Pinocchio model pools).
+#: output, and the rest: the vectorised step control and dense output in NumPy (and the
+#: batch's set-up: its Pinocchio model pools).
 PARTS = ("dynamics", "hybrid", "location", "stepping")
 
 _S = coef.N_STAGES
