@@ -283,3 +283,15 @@ def test_batched_dynamics_with_locks_equal_the_reduced_equations() -> None:
     a1, lam1 = dynamics.accelerations(q[1:2], v[1:2], tau[1:2], locked[1:2])
     assert not a1.any()
     assert np.allclose(lam1, lam[1:2], rtol=DYNAMICS_TOLERANCE, atol=0.0)
+
+
+def test_a_singular_lane_is_nan_and_leaves_the_others_solved() -> None:
+    """One singular M_ff gives NaN in its own lane only: that run fails, not the batch."""
+    from vtm_pin.batch import _solve_each
+
+    A = np.stack([np.eye(2) * 2.0, np.zeros((2, 2)), np.array([[1.0, 1.0], [0.0, 1.0]])])
+    rhs = np.array([[2.0, 4.0], [1.0, 1.0], [3.0, 1.0]])
+    x = _solve_each(A, rhs)
+    assert np.array_equal(x[0], [1.0, 2.0]) and np.array_equal(x[2], [2.0, 1.0])
+    assert np.isnan(x[1]).all()
+

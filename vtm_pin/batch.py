@@ -167,11 +167,29 @@ class _Dynamics:
         )
         both = free[:, :, None] & free[:, None, :]
         system = np.where(both, columns, 0.0) + locked[:, :, None] * np.eye(n)
-        a = np.linalg.solve(system, np.where(free, tau - b, 0.0)[:, :, None])[:, :, 0]
+        a = _solve_each(system, np.where(free, tau - b, 0.0))
         a[locked] = 0.0
         lam = np.einsum("rij,rj->ri", columns, a) + b - tau
         lam[free] = 0.0
         return a, lam
+
+
+def _solve_each(A: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """The solutions of A[r] x[r] = rhs[r], row by row; NaN where A[r] is singular.
+
+    A singular M_ff then fails that run alone (its derivatives are not finite), as the
+    scalar engine's ABA would, instead of the whole batch.
+    """
+    try:
+        return np.linalg.solve(A, rhs[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        x = np.full_like(rhs, np.nan)
+        for r in range(len(A)):
+            try:
+                x[r] = np.linalg.solve(A[r], rhs[r])
+            except np.linalg.LinAlgError:
+                continue
+        return x
 
 
 @dataclass
