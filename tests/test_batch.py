@@ -294,4 +294,3 @@ def test_a_singular_lane_is_nan_and_leaves_the_others_solved() -> None:
     x = _solve_each(A, rhs)
     assert np.array_equal(x[0], [1.0, 2.0]) and np.array_equal(x[2], [2.0, 1.0])
     assert np.isnan(x[1]).all()
-
