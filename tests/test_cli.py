@@ -283,6 +283,29 @@ def test_interrupt_during_the_imports_exits_130_in_one_line(capsys, monkeypatch)
     assert capsys.readouterr().err == "vtm-pin: interrupted; nothing written\n"
 
 
+def test_an_interrupt_swallowed_during_the_imports_still_exits_130(capsys, monkeypatch):
+    """Python drops a Ctrl-C raised in a weakref callback of the import machinery; not us."""
+    import importlib.abc
+
+    from vtm_pin.__main__ import entry_point
+
+    class Dropped:
+        def __del__(self):  # Python reports an exception here and drops it, as in a callback
+            signal.raise_signal(signal.SIGINT)
+
+    class Swallowing(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name == "vtm_pin.cli":
+                Dropped()  # Ctrl-C inside __del__: "Exception ignored in ...", the import goes on
+            return None
+
+    monkeypatch.delitem(sys.modules, "vtm_pin.cli")
+    monkeypatch.setattr(sys, "meta_path", [Swallowing(), *sys.meta_path])
+    monkeypatch.setattr(sys, "argv", ["vtm-pin", "run", str(PAPER)])
+    assert entry_point() == 130
+    assert capsys.readouterr().err == "vtm-pin: interrupted; nothing written\n"
+
+
 def test_sigint_early_in_a_real_process_exits_130_in_one_line(tmp_path):
     """Ctrl-C 0.3 s after start: during the imports (1-2 s) or the run, one line either way."""
     process = subprocess.Popen(
