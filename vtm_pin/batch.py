@@ -293,11 +293,7 @@ class BatchEngine:
         n = self.n
         start = time.perf_counter()
         q, v = y[:, :n], y[:, n : 2 * n]
-        elapsed = t[:, None] - lanes.engaged[rows]
-        ramp = lanes.ramp[rows]
-        factor = np.where(
-            ramp == 0.0, 1.0, np.clip(elapsed / np.where(ramp == 0.0, 1.0, ramp), 0.0, 1.0)
-        )
+        factor = _ramp_factor(lanes, rows, t)
         tau = -lanes.sign[rows] * (lanes.ratio[rows] * (factor * lanes.torque[rows]))
         a, lam = self.dynamics.accelerations(q, v, tau, lanes.locked[rows])
         out = np.zeros_like(y)
@@ -445,12 +441,7 @@ class BatchEngine:
         """The state-event functions of lanes ``rows`` (NaN where a joint has none)."""
         n = self.n
         kind = lanes.event_kind[rows]
-        elapsed = t[:, None] - lanes.engaged[rows]
-        ramp = lanes.ramp[rows]
-        factor = np.where(
-            ramp == 0.0, 1.0, np.clip(elapsed / np.where(ramp == 0.0, 1.0, ramp), 0.0, 1.0)
-        )
-        static = lanes.ratio[rows] * (factor * lanes.breakaway[rows])
+        static = lanes.ratio[rows] * (_ramp_factor(lanes, rows, t) * lanes.breakaway[rows])
         scale = np.maximum(1.0, np.max(np.abs(lam), axis=1))
         margin = static + ROUNDOFF * scale[:, None] - np.abs(lam)
         g = np.where(kind == 1, y[:, n : 2 * n], margin)
@@ -808,6 +799,13 @@ class _Step:
             self.y_new[mask],
             self.f_new[mask],
         )
+
+
+def _ramp_factor(lanes: _Lanes, rows: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The brakes' normal-force ramp at times t [s]: 0 to 1 over ``ramp`` after engaging."""
+    elapsed = t[:, None] - lanes.engaged[rows]
+    ramp = lanes.ramp[rows]
+    return np.where(ramp == 0.0, 1.0, np.clip(elapsed / np.where(ramp == 0.0, 1.0, ramp), 0.0, 1.0))
 
 
 def _crossed(g0: np.ndarray, g1: np.ndarray, direction: np.ndarray) -> np.ndarray:

@@ -28,6 +28,8 @@ CACHE_SIZE = 64
 class ModelCache:
     """Bounded store of objects derived from one robot's model, least recently used evicted.
 
+    (:class:`~vtm_pin.robot.RobotCache` keeps its loaded robots in one too.)
+
     It is not copied with its robot (a pickled or copied robot starts with an empty one).
 
     Args:

@@ -7,7 +7,6 @@ import os
 import re
 import sys
 import tempfile
-from collections import OrderedDict
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -237,7 +236,7 @@ class RobotCache:
 
     def __init__(self, size: int = 16) -> None:
         self.size = size
-        self._robots: OrderedDict[tuple[Any, ...], Robot] = OrderedDict()
+        self._robots = ModelCache(size)  # the same least-recently-used store
 
     def __call__(
         self,
@@ -247,13 +246,7 @@ class RobotCache:
     ) -> Robot:
         """The robot :func:`load_robot` returns for these arguments, loaded once."""
         key = (str(spec), tuple(sorted((drives or {}).items())), str(base_dir))
-        robot = self._robots.pop(key, None)
-        if robot is None:
-            robot = load_robot(spec, drives=drives, base_dir=base_dir)
-        self._robots[key] = robot
-        while len(self._robots) > self.size:
-            self._robots.popitem(last=False)
-        return robot
+        return self._robots.get(key, lambda: load_robot(spec, drives=drives, base_dir=base_dir))
 
 
 def _load_model(text: str, base_dir: Path | None) -> tuple[pin.Model, str]:

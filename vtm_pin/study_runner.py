@@ -155,7 +155,7 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
             :mod:`vtm_pin.batch`) or ``scalar``.
     """
     from .batch import run_many
-    from .scenario import build_scenario, scenario_failure
+    from .scenario import build_scenario
     from .study import resolve_case
 
     records: list[dict[str, Any]] = []
@@ -198,23 +198,22 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
             record["fallback"] = reason if engine == "batched" else None
             if share is not None:
                 record["engine_split"] = share
-            _record_result(record, scenario, result, scenario_failure)
+            _record_result(record, scenario, result)
     for record in records:
         timing = record["timing"]
         record["wall_time"] = sum(timing.values())
     return records
 
 
-def _record_result(
-    record: dict[str, Any], scenario: Any, result: Any, failure: Callable[[Any, Any], Any]
-) -> None:
+def _record_result(record: dict[str, Any], scenario: Any, result: Any) -> None:
     """Fill a case's record from its simulation (or the error that ended it)."""
+    from .scenario import scenario_failure
     from .stopping import compute_stopping_report
 
     begin = time.perf_counter()
     try:
         if isinstance(result, Exception):
-            raise failure(scenario, result)
+            raise scenario_failure(scenario, result)
         if scenario.stop is None:
             raise StudyError(scenario.source, "stop", "a study case needs a stop to measure")
         report = compute_stopping_report(

@@ -15,6 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 from .robot import Robot
+from .transitions.recursive import weightless as without_gravity
 
 
 def full_data(robot: Robot) -> pin.Data:
@@ -26,7 +27,7 @@ def full_data(robot: Robot) -> pin.Data:
 
 def weightless_model(robot: Robot) -> tuple[pin.Model, pin.Data]:
     """The robot's model without gravity, and its Data (for M v and M^-1 tau products)."""
-    return robot.cache.get("weightless", lambda: _with_data(_weightless(robot.model)))
+    return robot.cache.get("weightless", lambda: _with_data(without_gravity(robot.model)))
 
 
 def reduced_model(
@@ -48,7 +49,7 @@ def reduced_model(
     key = ("reduced", locked, np.asarray(q_locked, dtype=float).tobytes(), weightless)
     if weightless:
         return robot.cache.get(
-            key, lambda: _with_data(_weightless(reduced_model(robot, locked, q_locked)[0]))
+            key, lambda: _with_data(without_gravity(reduced_model(robot, locked, q_locked)[0]))
         )
 
     def build() -> tuple[pin.Model, pin.Data]:
@@ -59,12 +60,6 @@ def reduced_model(
         return _with_data(pin.buildReducedModel(model, ids, q))
 
     return robot.cache.get(key, build)
-
-
-def _weightless(model: pin.Model) -> pin.Model:
-    copy = pin.Model(model)
-    copy.gravity = pin.Motion.Zero()
-    return copy
 
 
 def _with_data(model: pin.Model) -> tuple[pin.Model, pin.Data]:
