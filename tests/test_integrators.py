@@ -214,3 +214,24 @@ def test_dop853_nested_in_a_right_hand_side_keeps_its_own_stages():
     plain = it.integrate(f, 0.0, np.array([1.0, 0.0]), 3.0)
     nested = it.integrate(f_nested, 0.0, np.array([1.0, 0.0]), 3.0)
     assert np.array_equal(plain.t, nested.t) and np.array_equal(plain.y, nested.y)
+
+
+@pytest.mark.parametrize("output_dt", [None, 0.01])
+def test_dop853_with_a_writing_right_hand_side_is_bit_for_bit_the_returning_one(output_dt):
+    """A right-hand side with ``into`` (a phase's topology) writes the stages in place.
+
+    The result must be the one of the same function called the plain way, with its dense
+    output (``output_dt``) and a state event located on it.
+    """
+    from vtm_pin import Topology
+    from vtm_pin.integrators import StateEvent
+
+    topology = Topology(robot("planar_3r"), [1], Q0)
+    y0 = topology.split(Q0, np.array([0.4, 0.0, -0.3]))
+    event = StateEvent(lambda t, y: y[0] - 0.2)  # joint 1 swings through 0.2 rad
+    it = DOP853(rtol=1e-9, atol=1e-11, output_dt=output_dt)
+    writing = it.integrate(topology, 0.0, y0, 2.0, [event])
+    plain = it.integrate(lambda t, y: topology.rhs(t, y), 0.0, y0, 2.0, [event])
+    assert hasattr(topology, "into") and writing.event == plain.event == 0
+    assert np.array_equal(writing.t, plain.t) and np.array_equal(writing.y, plain.y)
+    assert writing.rhs_evals == plain.rhs_evals

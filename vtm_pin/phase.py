@@ -16,6 +16,7 @@ from .brakes import BrakeMachine, BrakeMode, BrakeStateEvent
 from .drives import DriveLaw, DriveOff
 from .dynamics import compute_M
 from .holonomic import FrameConstraint, compute_kinematics, stack
+from .integrators import Rhs
 from .robot import Robot
 from .topology import Topology, full_data
 from .transitions import solve_saddle_point
@@ -74,7 +75,8 @@ class Phase:
         self.baumgarte = baumgarte
         self._drives = bool(self._drive_f.any())
         self.passive = not self._drives and not self._sliding and not self.constraints
-        self.rhs = self.topology.rhs if self.passive else self._rhs
+        # passive: the topology itself, which can also write into the integrator's buffers
+        self.rhs: Rhs = self.topology if self.passive else self._rhs
         # Per-call constants of the right-hand side: no torque, and where the impulses go.
         self._no_torque = np.zeros(self.k)
         self._no_torque.flags.writeable = False

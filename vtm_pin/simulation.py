@@ -23,7 +23,13 @@ from .constraints import check_independent, lock_jacobian
 from .drives import DriveHold, DriveLaw, DriveOff, DriveRamp
 from .dynamics import compute_energy, compute_M
 from .exceptions import SimulationError
-from .holonomic import FrameConstraint, compute_kinematics, project_initial_state, stack
+from .holonomic import (
+    FrameConstraint,
+    check_activation,
+    compute_kinematics,
+    project_initial_state,
+    stack,
+)
 from .integrators import Integrator, Rhs, Segment
 from .phase import Phase
 from .problem import LockEvent, Problem, check_transition
@@ -475,11 +481,9 @@ class _Trace:
         topology = phase.topology
         q = np.empty((size, n))
         v = np.zeros((size, n))
-        q[:, topology.locked] = topology.q_locked
+        q[:, topology.locked_index] = topology.q_locked
         q[:, topology.free] = segment.y[:, :k]
         v[:, topology.free] = segment.y[:, k : 2 * k]
-        mask = np.zeros(n, dtype=bool)
-        mask[topology.free] = True
         hold = np.full((size, n), np.nan)
         if holding and topology.locked and segment.holding is not None:
             locked = list(topology.locked)
@@ -493,7 +497,7 @@ class _Trace:
             t=segment.t,
             q=q,
             v=v,
-            free=np.repeat(mask[None], size, axis=0),
+            free=np.repeat(topology.free_mask[None], size, axis=0),
             modes=np.repeat(np.array(h.machine.modes, dtype=np.int8)[None], size, axis=0),
             extras=extras,
             hold=hold,
@@ -556,8 +560,6 @@ def _check_energy(
     events T + V changes only by the brakes' and drives' work; a step far too large makes it
     grow or collapse (or go non-finite) long before anything else is visibly wrong.
     """
-    from .holonomic import check_activation  # here: this function is all that imports it
-
     last = h.events[-1] if h.events else None
     if last is not None and last.activate and last.t == t[0]:
         q_start, _ = phase.topology.merge(y[0, : 2 * phase.k])

@@ -84,6 +84,9 @@ class Topology:
         #: ``locked`` as an index array [-].
         self.locked_index = np.array(self.locked, dtype=np.intp)
         self.q_locked = np.asarray(q, dtype=float)[self.locked_index]
+        #: Per coordinate, whether it is free.
+        self.free_mask = np.ones(nv, dtype=bool)
+        self.free_mask[self.locked_index] = False
         self._k = int(self.free.size)
         self._tau = np.zeros(self._k)
         self._model: pin.Model | None = None
@@ -134,3 +137,16 @@ class Topology:
             self._build()
         v = y[k:]
         return np.concatenate((v, pin.aba(self._model, self._data, y[:k], v, self._tau)))
+
+    __call__ = rhs
+
+    def into(self, t: float, y: np.ndarray, out: np.ndarray) -> None:
+        """:meth:`rhs` written into ``out`` (an integrator's stage buffer): no new array."""
+        k = self._k
+        if k == 0:
+            return
+        if self._model is None:
+            self._build()
+        v = y[k:]
+        out[:k] = v
+        out[k:] = pin.aba(self._model, self._data, y[:k], v, self._tau)

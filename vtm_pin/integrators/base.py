@@ -11,6 +11,22 @@ import numpy as np
 
 #: Right-hand side of y' = f(t, y).
 Rhs = Callable[[float, np.ndarray], np.ndarray]
+#: f(t, y) written into the third argument, allocating nothing: ``into(t, y, out)``. A
+#: right-hand side may offer one as its attribute ``into`` (see :func:`writer`).
+RhsInto = Callable[[float, np.ndarray, np.ndarray], None]
+
+
+def writer(f: Rhs) -> RhsInto:
+    """``f.into`` if the right-hand side has one, else a copy of f(t, y) into ``out``."""
+    into: RhsInto | None = getattr(f, "into", None)
+    if into is not None:
+        return into
+
+    def copy(t: float, y: np.ndarray, out: np.ndarray) -> None:
+        out[:] = f(t, y)
+
+    return copy
+
 
 #: Default ``max_steps`` of every integrator, as diffrax's: a safety net against a run that
 #: would never end, not a budget. 1e6 steps take 15 s (3R pendulum) to 7 min (five-bar loop).

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..exceptions import SimulationError, StepLimitError
 from . import dop853_coefficients as coef
-from .base import DEFAULT_MAX_STEPS, Rhs, Segment, StateEvent
+from .base import DEFAULT_MAX_STEPS, Rhs, RhsInto, Segment, StateEvent, writer
 from .fixed_step import locate
 
 _SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0
@@ -116,10 +116,11 @@ class DOP853:
         work: _Work,
     ) -> Segment:
         """:meth:`integrate` of an interval in which something moves, with its buffers."""
-        K = work.K
+        K, into = work.K, writer(f)
         ts, ys = [t0], [y0]
         t, y = t0, y0
-        fy = f(t, y)
+        fy = K[0]  # f at the step's start, kept in the first stage
+        fy[:] = f(t, y)
         h, extra = self._first_step(f, t, y, fy, t1 - t0)
         evals = 1 + extra
         g_prev = [e.g(t, y) for e in events]
@@ -132,7 +133,8 @@ class DOP853:
             last = t + h >= t1 - 1e-14 * max(1.0, abs(t1))
             if last:
                 h = t1 - t
-            y_new, f_new, err = self._step(f, t, y, fy, h, work)
+            y_new, err = self._step(into, t, y, h, work)
+            f_new = K[_S]
             evals += _S
             if not err <= 1.0:  # also a NaN error: a step through non-finite derivatives
                 h *= max(_MIN_FACTOR, _SAFETY * err**_EXPONENT) if math.isfinite(err) else 0.2
@@ -145,7 +147,7 @@ class DOP853:
                 g_new = [e.g(t_new, y_new) for e in events]
                 fired = [i for i, e in enumerate(events) if e.crossed(g_prev[i], g_new[i])]
                 if fired:
-                    dense = self._dense(f, t, y, y_new, fy, f_new, h, K)
+                    dense = self._dense(into, t, y, y_new, h, K)
                     tau, index = locate(events, fired, t, y, dense, h, self.event_tol)
                     if grid is not None:
                         grid.sample(dense, t, t + tau - grid.slack, ts, ys)
@@ -154,13 +156,14 @@ class DOP853:
                     return Segment(np.array(ts), np.array(ys), evals + _N_EXTRA, index, accepted)
                 g_prev = g_new
             if grid is not None and grid.due(t_new):
-                grid.sample(self._dense(f, t, y, y_new, fy, f_new, h, K), t, t_new, ts, ys)
+                grid.sample(self._dense(into, t, y, y_new, h, K), t, t_new, ts, ys)
                 evals += _N_EXTRA
             factor = _MAX_FACTOR if err == 0.0 else min(_MAX_FACTOR, _SAFETY * err**_EXPONENT)
             if rejected:
                 factor = min(1.0, factor)
             rejected = False
-            t, y, fy = t_new, y_new, f_new
+            t, y = t_new, y_new
+            fy[:] = f_new
             if grid is None or last:
                 ts.append(t)
                 ys.append(y)
@@ -212,53 +215,59 @@ class DOP853:
         return min(100.0 * h0, h1, span, self.max_step), 1
 
     def _step(
-        self, f: Rhs, t: float, y: np.ndarray, fy: np.ndarray, h: float, work: _Work
-    ) -> tuple[np.ndarray, np.ndarray, float]:
-        """One step: new state, f at it, and the scaled error norm (<= 1 to accept)."""
+        self, into: RhsInto, t: float, y: np.ndarray, h: float, work: _Work
+    ) -> tuple[np.ndarray, float]:
+        """One step from y, with f(t, y) in K[0]: the new state and the scaled error norm.
+
+        f at the new state is left in K[12] (first same as last); the error norm is <= 1 to
+        accept the step.
+        """
         # scipy's order of operations, y + (A[s] @ K) h, so that the steps are its steps to
-        # round-off; ndarray.dot rather than @ (the same BLAS products, less call overhead).
-        # (An array of h: NumPy multiplies by an array faster than by a float, bit for bit.)
+        # round-off (its error estimate is a difference of stages: at tight tolerances a
+        # different rounding of the stages moves the step sizes visibly); ndarray.dot rather
+        # than @ (the same BLAS products, less call overhead), and an array of h (NumPy
+        # multiplies by an array faster than by a float, bit for bit). The right-hand side
+        # writes each stage's slope into K[s] itself.
         K, hv = work.K, work.h
-        K[0] = fy
         hv.fill(h)
         for a, before, k, c in work.stages:
             dy = a.dot(before)
             dy *= hv
             dy += y
-            k[:] = f(t + c * h, dy)
+            into(t + c * h, dy, k)
         y_new = _B.dot(K[:_S])
         y_new *= hv
         y_new += y
-        f_new = f(t + h, y_new)
-        K[_S] = f_new
+        into(t + h, y_new, K[_S])
         scale = self._scale(y, y_new)
         Kn = K[: _S + 1]
         err5 = _E5.dot(Kn) / scale
         err3 = _E3.dot(Kn) / scale
         e5, e3 = float(err5.dot(err5)), float(err3.dot(err3))
         if e5 == 0.0 and e3 == 0.0:
-            return y_new, f_new, 0.0
-        return y_new, f_new, abs(h) * e5 / math.sqrt((e5 + 0.01 * e3) * y.size)
+            return y_new, 0.0
+        return y_new, abs(h) * e5 / math.sqrt((e5 + 0.01 * e3) * y.size)
 
     def _dense(
         self,
-        f: Rhs,
+        into: RhsInto,
         t: float,
         y: np.ndarray,
         y_new: np.ndarray,
-        fy: np.ndarray,
-        f_new: np.ndarray,
         h: float,
         K: np.ndarray,
     ) -> Dense:
-        """The step's 7th-order continuous extension, as a function of the offset tau [s]."""
+        """The step's 7th-order continuous extension, as a function of the offset tau [s].
+
+        K holds the step's stages, f at its start in K[0] and at its end in K[12].
+        """
         for s, (a, c) in enumerate(zip(_A_EXTRA, _C_EXTRA, strict=True), start=_S + 1):
-            K[s] = f(t + c * h, y + h * (a[:s] @ K[:s]))
+            into(t + c * h, y + h * (a[:s] @ K[:s]), K[s])
         delta = y_new - y
         F = np.empty((coef.INTERPOLATOR_POWER, y.size))
         F[0] = delta
-        F[1] = h * fy - delta
-        F[2] = 2.0 * delta - h * (f_new + fy)
+        F[1] = h * K[0] - delta
+        F[2] = 2.0 * delta - h * (K[_S] + K[0])
         F[3:] = h * (_D @ K)
 
         def dense(tau: float) -> np.ndarray:
@@ -305,6 +314,7 @@ class _Work:
     """
 
     def __init__(self, size: int) -> None:
+        #: The stages: f at the step's start first, at its end in K[12], then the dense ones.
         self.K = np.empty((_S + 1 + _N_EXTRA, size))
         self.h = np.empty(size)
         self.stages = [
@@ -359,4 +369,5 @@ class _Grid:
 
 
 def _rms(x: np.ndarray) -> float:
-    return float(np.linalg.norm(x) / math.sqrt(x.size))
+    # np.linalg.norm's own sqrt(x . x) for a vector, without its call overhead
+    return math.sqrt(float(x.dot(x))) / math.sqrt(x.size)

@@ -82,7 +82,7 @@ def compute_joint_lock_transition(
         v_locked[free] = 0.0
         tau = pin.rnea(model, data, q, zero, v_locked)[free]  # M_fl v-_l
         v_plus[free] += pin.aba(reduced, reduced_data, q[free], np.zeros(free.size), tau)
-    if not np.all(np.isfinite(v_plus)):
+    if not np.isfinite(v_plus).all():
         raise TransitionError(
             "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
             "matrix is singular or too ill-conditioned for this lock"
@@ -117,7 +117,7 @@ def compute_joint_lock_transition_dense(
     if free.size and v_l.any():  # joints locking at rest: no jump, no solve
         tau = M[free][:, rows] @ v_l  # M_fl v-_l
         v_plus[free] += np.linalg.solve(M[free][:, free], tau)
-    if not np.all(np.isfinite(v_plus)):
+    if not np.isfinite(v_plus).all():
         raise TransitionError(
             "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
             "matrix is singular or too ill-conditioned for this lock"
