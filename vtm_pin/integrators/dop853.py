@@ -120,7 +120,7 @@ class DOP853:
         ts, ys = [t0], [y0]
         t, y = t0, y0
         fy = K[0]  # f at the step's start, kept in the first stage
-        fy[:] = f(t, y)
+        into(t, y, fy)
         h, extra = self._first_step(f, t, y, fy, t1 - t0)
         evals = 1 + extra
         g_prev = [e.g(t, y) for e in events]
