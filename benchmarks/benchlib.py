@@ -121,6 +121,81 @@ def compute_reference(scenario: Scenario, rtol: float = REFERENCE_RTOL) -> np.nd
     return np.asarray(_simulate(scenario, make_integrator("dop853", rtol)).q[-1])
 
 
+@dataclass(frozen=True)
+class Run:
+    """One setting of a work-precision sweep, ready to run.
+
+    Attributes:
+        method: Integrator name (or another label, e.g. ``mujoco-exact``).
+        setting: Step [s] or relative tolerance [-].
+        run: One run: final positions q(T) [rad], right-hand-side evaluations, steps, and
+            the wall time of the simulation loop [s].
+    """
+
+    method: str
+    setting: float
+    run: Callable[[], tuple[np.ndarray, int, int, float]]
+
+
+def vtm_pin_runs(scenario: Scenario, ladders: Mapping[str, Sequence[float]]) -> list[Run]:
+    """The scenario with every integrator setting of ``ladders`` (``kkt`` rule)."""
+
+    def run(integrator: Integrator) -> tuple[np.ndarray, int, int, float]:
+        result = _simulate(scenario, integrator)
+        return result.q[-1], result.rhs_evals, result.steps, result.wall_time
+
+    return [
+        Run(m, s, functools.partial(run, make_integrator(m, s)))
+        for m, settings in ladders.items()
+        for s in settings
+    ]
+
+
+def measure_runs(
+    runs: Sequence[Run],
+    q_ref: np.ndarray,
+    rounds: int = 5,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[WorkPoint]:
+    """Error at T and median wall time of each run, measured in interleaved rounds.
+
+    Each round times every setting once, so a burst of load on a shared machine lands on all
+    of them alike rather than on the few measured during it: the ratios of one sweep compare
+    times taken side by side. Each timed run follows an untimed run of the same setting, so
+    every setting is timed warm, as in the repeated runs of a study (right after a long run of
+    another setting, a 1 ms run of ours took up to twice as long; MuJoCo's C loop hardly
+    changed).
+
+    Args:
+        runs: The settings (e.g. :func:`vtm_pin_runs` plus MuJoCo's).
+        q_ref: Reference final positions [rad], e.g. from :func:`compute_reference`.
+        rounds: Runs per setting; the wall time is their median.
+        progress: Called with (runs done, runs in all) after each run.
+    """
+    walls: list[list[float]] = [[] for _ in runs]
+    last: list[tuple[np.ndarray, int, int, float]] = []
+    for r in range(rounds):
+        for k, item in enumerate(runs):
+            item.run()  # warm-up
+            outcome = item.run()
+            walls[k].append(outcome[3])
+            if r == rounds - 1:
+                last.append(outcome)
+            if progress is not None:
+                progress(r * len(runs) + k + 1, rounds * len(runs))
+    return [
+        WorkPoint(
+            item.method,
+            item.setting,
+            float(np.max(np.abs(q - q_ref))),
+            evals,
+            steps,
+            statistics.median(wall),
+        )
+        for item, (q, evals, steps, _), wall in zip(runs, last, walls, strict=True)
+    ]
+
+
 def measure_work_precision(
     scenario: Scenario,
     q_ref: np.ndarray,
@@ -134,28 +209,11 @@ def measure_work_precision(
         scenario: The scenario (its own integrator is ignored; the transition is ``kkt``).
         q_ref: Reference final positions [rad], e.g. from :func:`compute_reference`.
         ladders: Settings per method, as :data:`LADDERS`.
-        repeats: Runs per setting; the wall time is their median.
-        progress: Called with (runs done, runs in all) after each setting.
+        repeats: Timed runs per setting (in interleaved rounds); the wall time is their
+            median.
+        progress: Called with (runs done, runs in all) after each run.
     """
-    todo = [(m, s) for m, settings in ladders.items() for s in settings]
-    points = []
-    for k, (method, setting) in enumerate(todo):
-        integrator = make_integrator(method, setting)
-        runs = [_simulate(scenario, integrator) for _ in range(repeats)]
-        result = runs[-1]
-        points.append(
-            WorkPoint(
-                method,
-                setting,
-                float(np.max(np.abs(result.q[-1] - q_ref))),
-                result.rhs_evals,
-                result.steps,
-                statistics.median(r.wall_time for r in runs),
-            )
-        )
-        if progress is not None:
-            progress(k + 1, len(todo))
-    return points
+    return measure_runs(vtm_pin_runs(scenario, ladders), q_ref, repeats, progress)
 
 
 def time_to_accuracy(points: Sequence[WorkPoint], method: str, target: float) -> float:

@@ -2,7 +2,9 @@
 
 For each scenario every integrator runs over a ladder of step sizes / tolerances. The error is
 max |q(T) - q_ref(T)| [rad] against DOP853 at rtol = 1e-13; the time is the median over
-``--repeats`` runs of the simulation loop alone (``SimulationResult.wall_time``). With the
+``--repeats`` runs of the simulation loop alone (``SimulationResult.wall_time``), taken in
+interleaved rounds (each round runs every setting once, MuJoCo's included), so that a burst
+of load on a shared machine lands on every setting alike. With the
 optional ``mujoco`` extra installed, MuJoCo replays the scenarios that have prescribed locks
 (exact locks: one model per topology plus the consistent jump; soft: its own equality lock
 switched on with ``eq_active``) and the ratio of wall times at equal accuracy is printed.
@@ -13,22 +15,25 @@ switched on with ``eq_active``) and the ratio of wall times at equal accuracy is
 from __future__ import annotations
 
 import argparse
+import functools
 import json
-import statistics
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from benchlib import (
     LADDERS,
-    WorkPoint,
+    Run,
     compute_reference,
     format_work_precision,
-    measure_work_precision,
+    measure_runs,
     plot_work_precision,
     time_to_accuracy,
+    vtm_pin_runs,
 )
 
 import vtm_pin as vp
@@ -39,33 +44,34 @@ MUJOCO_DT = [5e-2, 2.5e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4]
 TARGETS = [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10]  # [rad]
 
 
-def measure_mujoco(scenario: vp.Scenario, q_ref: np.ndarray, repeats: int) -> list[WorkPoint]:
+def mujoco_runs(scenario: vp.Scenario) -> list[Run]:
+    """MuJoCo's replays of the scenario at each step of ``MUJOCO_DT`` it can land on.
+
+    None without the ``mujoco`` extra; a dt off the grid of an event is left out (MuJoCo
+    cannot land on the event).
+    """
     try:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         import mujoco_reference
     except ImportError:
         return []
-    rows = []
-    for variant, run in [
+
+    def run(replay: Callable[..., Any], dt: float) -> tuple[np.ndarray, int, int, float]:
+        done = replay(scenario, dt)
+        return done.q, 4 * done.steps, done.steps, done.wall_time
+
+    runs = []
+    for variant, replay in [
         ("mujoco-exact", mujoco_reference.run_exact),
         ("mujoco-soft", mujoco_reference.run_soft),
     ]:
         for dt in MUJOCO_DT:
             try:
-                runs = [run(scenario, dt) for _ in range(repeats)]
+                replay(scenario, dt)
             except ValueError:  # an event off this dt grid: MuJoCo cannot land on it
                 continue
-            rows.append(
-                WorkPoint(
-                    variant,
-                    dt,
-                    float(np.max(np.abs(runs[-1].q - q_ref))),
-                    4 * runs[-1].steps,
-                    runs[-1].steps,
-                    statistics.median(r.wall_time for r in runs),
-                )
-            )
-    return rows
+            runs.append(Run(variant, dt, functools.partial(run, replay, dt)))
+    return runs
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -83,11 +89,13 @@ def main(argv: list[str] | None = None) -> None:
 
         def progress(done: int, total: int, name: str = name, started: float = started) -> None:
             elapsed = time.perf_counter() - started
-            print(f"\r{name}: {done}/{total} settings, {elapsed:.0f} s", end="", file=sys.stderr)
+            print(f"\r{name}: {done}/{total} runs, {elapsed:.0f} s", end="", file=sys.stderr)
 
-        rows = measure_work_precision(scenario, q_ref, LADDERS, args.repeats, progress)
+        # MuJoCo's settings in the same interleaved rounds as ours (see measure_runs)
+        runs = vtm_pin_runs(scenario, LADDERS)
         if scenario.stop is None:
-            rows += measure_mujoco(scenario, q_ref, args.repeats)
+            runs += mujoco_runs(scenario)
+        rows = measure_runs(runs, q_ref, args.repeats, progress)
         print(file=sys.stderr)
         print(
             f"\n{name} (T = {scenario.duration} s, {len(scenario.events)} prescribed locks, "
