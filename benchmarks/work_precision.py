@@ -47,8 +47,8 @@ TARGETS = [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10]  # [rad]
 def mujoco_runs(scenario: vp.Scenario) -> list[Run]:
     """MuJoCo's replays of the scenario at each step of ``MUJOCO_DT`` it can land on.
 
-    None without the ``mujoco`` extra; a dt off the grid of an event is left out (MuJoCo
-    cannot land on the event).
+    None (an empty list) without the ``mujoco`` extra; a dt off the grid of an event is left
+    out (MuJoCo cannot land on the event).
     """
     try:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -80,6 +80,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out")
     parser.add_argument("--scenarios", nargs="*", default=SCENARIOS)
     args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error(f"--repeats {args.repeats}: at least 1 timed run per setting")
     args.out.mkdir(parents=True, exist_ok=True)
     report = {}
     for name in args.scenarios:

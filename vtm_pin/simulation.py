@@ -31,6 +31,7 @@ from .holonomic import (
     stack,
 )
 from .integrators import Integrator, Rhs, Segment
+from .integrators.base import writer
 from .phase import Phase
 from .problem import LockEvent, Problem, check_transition
 from .results import (
@@ -347,7 +348,7 @@ def hybrid_run(
         phase = h.phase
         segment = yield SegmentRequest(
             phase,
-            phase.rhs if progress is None else _reporting(phase.rhs, progress),
+            phase.rhs if progress is None else _Reporting(phase.rhs, progress),
             t,
             phase.pack(h.q, h.v, h.extras),
             t_end,
@@ -612,14 +613,27 @@ def _sampling(integrator: Integrator, phase: Phase) -> Integrator:
     return integrator
 
 
-def _reporting(rhs: Rhs, progress: Callable[[float], None]) -> Rhs:
-    """The right-hand side ``rhs``, telling ``progress`` the time of each evaluation."""
+class _Reporting:
+    """The right-hand side ``rhs``, telling ``progress`` the time of each evaluation.
 
-    def f(t: float, y: np.ndarray) -> np.ndarray:
-        progress(t)
-        return rhs(t, y)
+    It writes into the integrator's buffers as ``rhs`` does (see
+    :data:`~vtm_pin.integrators.base.RhsInto`).
+    """
 
-    return f
+    def __init__(self, rhs: Rhs, progress: Callable[[float], None]) -> None:
+        self.rhs = rhs
+        self.progress = progress
+        self._into = writer(rhs)
+
+    def __call__(self, t: float, y: np.ndarray) -> np.ndarray:
+        """f(t, y), after telling ``progress`` the time t [s]."""
+        self.progress(t)
+        return self.rhs(t, y)
+
+    def into(self, t: float, y: np.ndarray, out: np.ndarray) -> None:
+        """f(t, y) into ``out``, after telling ``progress`` the time t [s]."""
+        self.progress(t)
+        self._into(t, y, out)
 
 
 def _settings(integrator: Integrator) -> str:

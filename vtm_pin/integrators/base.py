@@ -11,8 +11,9 @@ import numpy as np
 
 #: Right-hand side of y' = f(t, y).
 Rhs = Callable[[float, np.ndarray], np.ndarray]
-#: f(t, y) written into the third argument, allocating nothing: ``into(t, y, out)``. A
-#: right-hand side may offer one as its attribute ``into`` (see :func:`writer`).
+#: f(t, y) written into the third argument, allocating nothing: ``into(t, y, out)``, where
+#: ``out`` never overlaps ``y``. A right-hand side offers one as its attribute named ``into``
+#: (see :func:`writer`); integrators use it when present.
 RhsInto = Callable[[float, np.ndarray, np.ndarray], None]
 
 
