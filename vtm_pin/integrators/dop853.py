@@ -33,6 +33,8 @@ _EXPONENT = -1.0 / 8.0
 _S = coef.N_STAGES  # 12 stages; K[12] is f at the step end (first same as last)
 _A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
 _E3, _E5, _D = coef.E3, coef.E5, coef.D
+#: The stages' weights, then the solution's, one row each (h times them per step).
+_AB = np.vstack((_A, _B))
 _A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
 _N_EXTRA = _A_EXTRA.shape[0]  # 3 more evaluations of f for the dense output of a step
 
@@ -222,22 +224,18 @@ class DOP853:
         f at the new state is left in K[12] (first same as last); the error norm is <= 1 to
         accept the step.
         """
-        # scipy's order of operations, y + (A[s] @ K) h, so that the steps are its steps to
-        # round-off (its error estimate is a difference of stages: at tight tolerances a
-        # different rounding of the stages moves the step sizes visibly); ndarray.dot rather
-        # than @ (the same BLAS products, less call overhead), and an array of h (NumPy
-        # multiplies by an array faster than by a float, bit for bit). The right-hand side
-        # writes each stage's slope into K[s] itself.
-        K, hv = work.K, work.h
-        hv.fill(h)
-        for a, before, k, c in work.stages:
-            dy = a.dot(before)
-            dy *= hv
-            dy += y
-            into(t + c * h, dy, k)
-        y_new = _B.dot(K[:_S])
-        y_new *= hv
-        y_new += y
+        # Each stage state is one product y + (h A[s]) @ K = (1, h A[s]) @ (y, K), with the
+        # rows (1, h A[s]) scaled once per step (work.hAB), and the right-hand side writes
+        # the stage's slope into K[s] itself: per stage one NumPy call and f. scipy groups
+        # the same sum as y + (A[s] @ K) h (three calls); the two agree to round-off, but the
+        # error estimate below is a difference of stages, so at tight tolerances that
+        # round-off moves the step sizes in their last few digits (tests/test_integrators.py).
+        K = work.K
+        work.Y[0] = y
+        np.multiply(_AB, h, out=work.hAB)
+        for row, before, k, c in work.stages:
+            into(t + c * h, row.dot(before), k)
+        y_new = work.solution.dot(work.Y[: _S + 1])
         into(t + h, y_new, K[_S])
         scale = self._scale(y, y_new)
         Kn = K[: _S + 1]
@@ -314,12 +312,19 @@ class _Work:
     """
 
     def __init__(self, size: int) -> None:
+        #: The step's start y, then its stages K.
+        self.Y = np.empty((2 + _S + _N_EXTRA, size))
         #: The stages: f at the step's start first, at its end in K[12], then the dense ones.
-        self.K = np.empty((_S + 1 + _N_EXTRA, size))
-        self.h = np.empty(size)
+        self.K = self.Y[1:]
+        hAB = np.ones((_S + 1, _S + 1))
+        #: h times the stages' weights, then the solution's (written each step), after a
+        #: column of ones that takes y into each product.
+        self.hAB = hAB[:, 1:]
+        #: (1, h B): the new state from (y, K).
+        self.solution = hAB[_S]
+        #: Per stage s: (1, h A[s]), the rows (y, K[:s]) it weighs, K[s], and c[s].
         self.stages = [
-            (np.ascontiguousarray(_A[s, :s]), self.K[:s], self.K[s], float(_C[s]))
-            for s in range(1, _S)
+            (hAB[s, : s + 1], self.Y[: s + 1], self.K[s], float(_C[s])) for s in range(1, _S)
         ]
 
 
