@@ -62,18 +62,22 @@ class Phase:
         self.drive = (DriveOff() if drive is None else drive).bind(free)
         on = np.zeros(n, dtype=bool) if drive_on is None else np.asarray(drive_on, dtype=bool)
         self._drive_f = on[free] if self.drive.acts else np.zeros(self.k, dtype=bool)
-        self._sliding = [
-            (f, int(j), brakes.brakes[int(j)])
-            for f, j in enumerate(free)
-            if brakes and self.modes[int(j)].sliding
-        ]
+        self._sliding = (
+            [
+                (f, int(j), brakes.brakes[int(j)])
+                for f, j in enumerate(free)
+                if self.modes[int(j)].sliding
+            ]
+            if brakes
+            else []
+        )
         self._signs = {int(j): self.modes[int(j)].sign for _, j, _ in self._sliding}
         self._full_data = full_data(robot)
         self._last_hold: tuple[float, bytes, np.ndarray] | None = None
         #: No torque acts: y is (q_f, v_f) only and the accumulators stay constant.
         self.constraints = tuple(constraints)
         self.baumgarte = baumgarte
-        self._drives = bool(self._drive_f.any())
+        self._drives = bool(np.count_nonzero(self._drive_f))
         self.passive = not self._drives and not self._sliding and not self.constraints
         # passive: the topology itself, which can also write into the integrator's buffers
         self.rhs: Rhs = self.topology if self.passive else self._rhs

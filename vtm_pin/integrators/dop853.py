@@ -15,10 +15,9 @@ the solution) is the same as without it, and the last sample is still the state 
 
 from __future__ import annotations
 
-import contextlib
 import math
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,7 +37,7 @@ _AB = np.vstack((_A, _B))
 _A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
 _N_EXTRA = _A_EXTRA.shape[0]  # 3 more evaluations of f for the dense output of a step
 
-#: Per thread, the free stage buffers of each state size (:func:`_borrow`).
+#: Per thread, the free stage buffers of each state size (:func:`_free`).
 _FREE = threading.local()
 
 #: Output times closer than this fraction of ``output_dt`` to an interval's start or end are
@@ -104,8 +103,14 @@ class DOP853:
             return Segment(
                 t=np.array(times), y=np.zeros((len(times), y0.size)) + y0, rhs_evals=0, n_steps=1
             )
-        with _borrow(y0.size) as work:
+        # This thread's free stage buffers for the state size, held until the interval ends,
+        # so that an integration nested in a right-hand side or an event gets its own.
+        free = _free(y0.size)
+        work = free.pop() if free else _Work(y0.size)
+        try:
             return self._integrate(f, t0, y0, t1, events, grid, work)
+        finally:
+            free.append(work)
 
     def _integrate(
         self,
@@ -288,20 +293,10 @@ def dense_weights(x: float) -> np.ndarray:
     return np.array(w)
 
 
-@contextlib.contextmanager
-def _borrow(size: int) -> Iterator[_Work]:
-    """Stage buffers for states of ``size``: this thread's free ones, else new ones.
-
-    An interval holds them until it ends, so an integration nested in a right-hand side or an
-    event function gets buffers of its own.
-    """
+def _free(size: int) -> list[_Work]:
+    """This thread's free stage buffers for states of ``size`` (a stack)."""
     free: dict[int, list[_Work]] = _FREE.__dict__.setdefault("by_size", {})
-    stack = free.setdefault(size, [])
-    work = stack.pop() if stack else _Work(size)
-    try:
-        yield work
-    finally:
-        stack.append(work)
+    return free.setdefault(size, [])
 
 
 class _Work:

@@ -63,9 +63,10 @@ def compute_joint_lock_transition(
         The same transition as the kkt rule gives for unit-row J1 and J2: v+, Lambda (J1 rows
         first), energy loss, the free joints' momenta before and after, residual 0.
     """
-    locked = [*locked_before, *joints]
-    held = set(locked)
-    free = np.array([i for i in range(model.nv) if i not in held], dtype=np.intp)
+    locked = np.array([*locked_before, *joints], dtype=np.intp)
+    free = np.ones(model.nv, dtype=bool)
+    free[locked] = False
+    free = np.flatnonzero(free)
     data = model.createData() if data is None else data
     zero = np.zeros(model.nv)
     p_minus = pin.rnea(model, data, q, zero, v_minus)  # M v- (a new array)
@@ -74,7 +75,8 @@ def compute_joint_lock_transition(
     if free.size:
         if reduced is None:
             ids = [model.joints[j].id for j in range(1, model.njoints)]
-            fixed = [ids[i] for i in range(len(ids)) if model.joints[ids[i]].idx_v in locked]
+            held = set(locked.tolist())
+            fixed = [ids[i] for i in range(len(ids)) if model.joints[ids[i]].idx_v in held]
             reduced = pin.buildReducedModel(model, fixed, q)
             reduced_data = None
         reduced_data = reduced.createData() if reduced_data is None else reduced_data
@@ -123,7 +125,7 @@ def compute_joint_lock_transition_dense(
             "matrix is singular or too ill-conditioned for this lock"
         )
     M_dv = M @ (v_plus - v_minus)
-    return _result(v_minus, v_plus, p_minus, M_dv, locked, free, len(locked_before))
+    return _result(v_minus, v_plus, p_minus, M_dv, rows, free, len(locked_before))
 
 
 def _result(
@@ -131,7 +133,7 @@ def _result(
     v_plus: np.ndarray,
     p_minus: np.ndarray,
     M_dv: np.ndarray,
-    locked: list[int],
+    locked: np.ndarray,
     free: np.ndarray,
     m1: int,
 ) -> TransitionResult:
