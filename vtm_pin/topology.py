@@ -79,14 +79,13 @@ class Topology:
         self.robot = robot
         self.nv = nv = robot.nv
         self.locked = tuple(sorted(int(i) for i in locked))
-        held = set(self.locked)
-        self.free = np.array([i for i in range(nv) if i not in held], dtype=np.intp)
         #: ``locked`` as an index array [-].
         self.locked_index = np.array(self.locked, dtype=np.intp)
         self.q_locked = np.asarray(q, dtype=float)[self.locked_index]
         #: Per coordinate, whether it is free.
         self.free_mask = np.ones(nv, dtype=bool)
         self.free_mask[self.locked_index] = False
+        self.free = np.flatnonzero(self.free_mask)
         self._k = int(self.free.size)
         self._tau = np.zeros(self._k)
         self._model: pin.Model | None = None
@@ -130,13 +129,9 @@ class Topology:
 
     def rhs(self, t: float, y: np.ndarray) -> np.ndarray:
         """Time derivative of the free state, (v_f, a_f) from ABA on the reduced model."""
-        k = self._k
-        if k == 0:
-            return np.empty(0)
-        if self._model is None:
-            self._build()
-        v = y[k:]
-        return np.concatenate((v, pin.aba(self._model, self._data, y[:k], v, self._tau)))
+        out = np.empty(2 * self._k)
+        self.into(t, y, out)
+        return out
 
     __call__ = rhs
 

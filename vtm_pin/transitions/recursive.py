@@ -63,10 +63,7 @@ def compute_joint_lock_transition(
         The same transition as the kkt rule gives for unit-row J1 and J2: v+, Lambda (J1 rows
         first), energy loss, the free joints' momenta before and after, residual 0.
     """
-    locked = np.array([*locked_before, *joints], dtype=np.intp)
-    free = np.ones(model.nv, dtype=bool)
-    free[locked] = False
-    free = np.flatnonzero(free)
+    locked, free = _split(model.nv, locked_before, joints)
     data = model.createData() if data is None else data
     zero = np.zeros(model.nv)
     p_minus = pin.rnea(model, data, q, zero, v_minus)  # M v- (a new array)
@@ -108,14 +105,11 @@ def compute_joint_lock_transition_dense(
         locked_before: Velocity indices locked before the event.
         joints: Velocity indices locking at the event.
     """
-    locked = [*locked_before, *joints]
-    held = set(locked)
-    free = np.array([i for i in range(len(v_minus)) if i not in held], dtype=np.intp)
-    rows = np.array(locked, dtype=np.intp)
+    rows, free = _split(len(v_minus), locked_before, joints)
     p_minus = M @ v_minus
     v_plus = np.array(v_minus, dtype=float)
     v_l = v_plus[rows]
-    v_plus[locked] = 0.0
+    v_plus[rows] = 0.0
     if free.size and v_l.any():  # joints locking at rest: no jump, no solve
         tau = M[free][:, rows] @ v_l  # M_fl v-_l
         v_plus[free] += np.linalg.solve(M[free][:, free], tau)
@@ -126,6 +120,16 @@ def compute_joint_lock_transition_dense(
         )
     M_dv = M @ (v_plus - v_minus)
     return _result(v_minus, v_plus, p_minus, M_dv, rows, free, len(locked_before))
+
+
+def _split(
+    n: int, locked_before: Sequence[int], joints: Sequence[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the locked coordinates (J1 rows, then J2) and of the free ones, in order."""
+    locked = np.array([*locked_before, *joints], dtype=np.intp)
+    free = np.ones(n, dtype=bool)
+    free[locked] = False
+    return locked, np.flatnonzero(free)
 
 
 def _result(
