@@ -1,7 +1,11 @@
+import copy
 import math
 import time
 
 import pytest
+from conftest import SCENARIOS
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from vtm_pin.exceptions import ScenarioError, excerpt
 from vtm_pin.inputs import MAX_DEPTH, MAX_FILE_BYTES, MAX_NODES, check_schema, read_yaml
@@ -144,3 +148,51 @@ def test_too_many_values_built_in_python_are_refused():
 @pytest.mark.parametrize("text", ["1e-4", "1.0e-4", "1e+3", "1E3", ".5e1", "-2.5e-3"])
 def test_exponents_read_as_numbers_as_in_yaml_1_2(tmp_path, text):
     assert read(tmp_path, f"x: {text}\n".encode())["x"] == float(text)
+
+
+# A study's cases are checked against their base: only the top-level values that differ are
+# validated again. That must raise exactly when, and with exactly the message that, the whole
+# check does.
+
+_VALUES = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-3, 3),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=4),
+    st.lists(st.floats(-2.0, 2.0), max_size=7),
+    st.dictionaries(
+        st.sampled_from(["joint", "speed", "mass", "t", "category", "zz"]),
+        st.one_of(st.floats(-2.0, 2.0), st.text(max_size=3)),
+        max_size=3,
+    ),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    key=st.sampled_from(
+        ["annex_b", "payload", "stop", "brakes", "duration", "robot", "initial", "typo"]
+    ),
+    inner=st.sampled_from([None, "joint", "speed", "mass", "category", "elbow_joint", "q"]),
+    value=_VALUES,
+)
+@example(key="stop", inner="category", value=False)  # 0 == False, but False is no category
+def test_checking_against_a_valid_base_raises_as_the_whole_check_does(key, inner, value):
+    from vtm_pin.scenario import SCHEMA as SCENARIO_SCHEMA
+
+    base = read_yaml(SCENARIOS / "ur10_annex_b.yaml", ScenarioError)
+    raw = copy.deepcopy(base)
+    if inner is None or not isinstance(raw.get(key), dict):
+        raw[key] = value
+    else:
+        raw[key][inner] = value
+
+    def outcome(**valid):
+        try:
+            check_schema(raw, SCENARIO_SCHEMA, "case", ScenarioError, **valid)
+        except ScenarioError as exc:
+            return str(exc)
+        return None
+
+    assert outcome(valid=base) == outcome()

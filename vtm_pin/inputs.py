@@ -190,7 +190,12 @@ def number(
 
 
 def check_schema(
-    raw: Any, schema: Mapping[str, Any], source: str, error: type[InputError], root: str = ""
+    raw: Any,
+    schema: Mapping[str, Any],
+    source: str,
+    error: type[InputError],
+    root: str = "",
+    valid: Mapping[str, Any] | None = None,
 ) -> None:
     """Validate a parsed document against ``schema``; raise on the first error, shallowest first.
 
@@ -201,11 +206,26 @@ def check_schema(
         error: Exception class raised.
         root: Key path of ``raw`` in its file ("" for a whole file, ``integrator`` for that
             part of a scenario).
+        valid: A document known to pass ``schema``. Top-level values of ``raw`` equal to its
+            own are not checked again (a study's cases differ from their base in a few keys);
+            the top level itself (required and unknown keys) always is.
 
     Raises:
         InputError: (as ``error``) naming the key path, the value and what is allowed.
     """
-    _check_keys(raw, source, error, root)
+    if valid is not None and isinstance(raw, Mapping) and set(schema) <= _TOP_LEVEL:
+        # repr, not ==: 0 == False and 1 == 1.0, but the schema tells them apart
+        same = {
+            key for key, value in raw.items() if key in valid and repr(valid[key]) == repr(value)
+        }
+        properties = schema.get("properties", {})
+        schema = {
+            **schema,
+            "properties": {**properties, **{key: True for key in same & set(properties)}},
+        }
+        _check_keys({k: v for k, v in raw.items() if k not in same}, source, error, root)
+    else:
+        _check_keys(raw, source, error, root)
     errors = sorted(
         _Validator(schema).iter_errors(raw),
         key=lambda e: (len(e.absolute_path), [str(p) for p in e.absolute_path]),
@@ -219,6 +239,11 @@ def check_schema(
         known = found.schema.get("properties", {}) if isinstance(found.schema, Mapping) else {}
         path.append(sorted(str(k) for k in found.instance if k not in known)[0])
     raise error(source, key_path(path), _describe(found))
+
+
+#: Schema keywords at the top level under which ``check_schema(valid=...)`` may skip unchanged
+#: values: each checks a value alone, or the keys, never one value against another.
+_TOP_LEVEL = {"type", "additionalProperties", "required", "properties", "description"}
 
 
 def key_path(parts: Sequence[Any]) -> str:

@@ -557,6 +557,7 @@ def build_scenario(
     base_dir: Path | None = None,
     name: str = "scenario",
     loader: Callable[..., Robot] = load_robot,
+    valid: Mapping[str, Any] | None = None,
 ) -> Scenario:
     """Validate a scenario given as a mapping (the parsed YAML) and resolve it.
 
@@ -567,13 +568,15 @@ def build_scenario(
         name: Name used for outputs.
         loader: Loads the robot, with :func:`vtm_pin.robot.load_robot`'s arguments (studies
             pass a cached one; the robot it returns is never modified).
+        valid: A scenario known to pass the schema (:func:`passes_schema`), such as a study's
+            base: top-level keys of ``raw`` equal to its own are not checked again.
 
     Raises:
         ScenarioError: The mapping breaks the schema or names unknown robots or joints.
     """
     if not isinstance(raw, Mapping):
         raise ScenarioError(source, "", "a scenario must be a mapping of keys to values")
-    _check_schema(raw, source)
+    _check_schema(raw, source, valid)
     raw = merge_includes(raw, source, base_dir)
     duration = float(raw["duration"])
 
@@ -1021,5 +1024,16 @@ def _joint_vector(robot: Robot, value: Any, source: str, key: str) -> np.ndarray
     return out
 
 
-def _check_schema(raw: Mapping[str, Any], source: str) -> None:
-    check_schema(raw, SCHEMA, source, ScenarioError)
+def _check_schema(
+    raw: Mapping[str, Any], source: str, valid: Mapping[str, Any] | None = None
+) -> None:
+    check_schema(raw, SCHEMA, source, ScenarioError, valid=valid)
+
+
+def passes_schema(raw: Any) -> bool:
+    """Whether a parsed scenario passes the scenario schema (includes not merged)."""
+    try:
+        _check_schema(raw, "")
+    except ScenarioError:
+        return False
+    return True

@@ -155,12 +155,15 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
             :mod:`vtm_pin.batch`) or ``scalar``.
     """
     from .batch import run_many
-    from .scenario import build_scenario
+    from .scenario import build_scenario, passes_schema
     from .study import resolve_case
 
     records: list[dict[str, Any]] = []
     built: list[tuple[dict[str, Any], Any]] = []
+    valid: dict[int, Mapping[str, Any] | None] = {}  # per base: itself if it passes the schema
     for task in tasks:
+        if id(task.base) not in valid:
+            valid[id(task.base)] = task.base if passes_schema(task.base) else None
         case = task.case
         record: dict[str, Any] = {"case": case.id, "index": case.index, "values": dict(case.values)}
         records.append(record)
@@ -169,7 +172,12 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
             raw = resolve_case(task.base, case.values)
             source = f"{task.source} (case {case.id})"
             scenario = build_scenario(
-                raw, source=source, base_dir=Path(task.base_dir), name=task.name, loader=_ROBOTS
+                raw,
+                source=source,
+                base_dir=Path(task.base_dir),
+                name=task.name,
+                loader=_ROBOTS,
+                valid=valid[id(task.base)],
             )
             built.append((record, scenario))
         except Exception as exc:
