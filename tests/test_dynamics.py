@@ -2,8 +2,11 @@ import numpy as np
 import planar_reference as ref
 import pytest
 from conftest import robot
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vtm_pin import Topology, compute_bias, compute_energy, compute_forward_dynamics, compute_M
+from vtm_pin.dynamics import solve_small
 
 # Two Pinocchio algorithms (ABA on a reduced model vs CRBA + RNEA + Cholesky) agree to
 # round-off amplified by cond(M) <= ~1e4 for these arms.
@@ -89,3 +92,24 @@ def test_energy_momentum_equals_the_mass_matrix_product():
         # 1e-12 relative: the same sums in another order, round-off only
         assert np.allclose(energy.p[i], p, rtol=1e-12, atol=1e-12 * np.abs(p).max())
         assert energy.kinetic[i] == pytest.approx(0.5 * result.v[i] @ p, rel=1e-12, abs=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(1, 8), seed=st.integers(0, 2**31 - 1))
+def test_solve_small_solves_as_numpy_does(n, seed):
+    """LAPACK's gesv called directly: NumPy's solve (the same LU) to round-off."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n, n)) + n * np.eye(n)
+    b = rng.normal(size=n)
+    x = solve_small(A, b)
+    # Tolerance: two LU solves of a well-conditioned (diagonally loaded) matrix agree to a
+    # few ulps of the solution.
+    np.testing.assert_allclose(
+        x, np.linalg.solve(A, b), rtol=0, atol=1e-12 * max(1.0, np.abs(x).max())
+    )
+    np.testing.assert_allclose(A @ x, b, rtol=0, atol=1e-10)
+
+
+def test_solve_small_refuses_a_singular_matrix_as_numpy_does():
+    with pytest.raises(np.linalg.LinAlgError):
+        solve_small(np.array([[1.0, 2.0], [2.0, 4.0]]), np.ones(2))

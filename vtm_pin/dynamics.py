@@ -13,6 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 import scipy.linalg
+from scipy.linalg.lapack import dgesv as _gesv
 
 
 def compute_M(model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
@@ -21,6 +22,21 @@ def compute_M(model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
     lower = _lower_triangle(model.nv)
     M[lower] = M.T[lower]
     return M
+
+
+def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The solution x of A x = b for a small dense A.
+
+    LAPACK's gesv (LU with partial pivoting), as ``np.linalg.solve`` calls it, without NumPy's
+    Python wrapper: about 1 instead of 4 us at n = 6.
+
+    Raises:
+        numpy.linalg.LinAlgError: A is singular (as ``np.linalg.solve`` raises).
+    """
+    x, info = _gesv(A, b)[2:]
+    if info != 0:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return np.asarray(x)
 
 
 @functools.lru_cache(maxsize=32)

@@ -14,7 +14,7 @@ import pinocchio as pin
 
 from .brakes import BrakeMachine, BrakeMode, BrakeStateEvent
 from .drives import DriveLaw, DriveOff
-from .dynamics import compute_M
+from .dynamics import compute_M, solve_small
 from .holonomic import FrameConstraint, compute_kinematics, stack
 from .integrators import Rhs
 from .robot import Robot
@@ -187,11 +187,14 @@ class Phase:
             out[r] = np.max(np.abs(h)), np.max(np.abs(J @ v))
         return out
 
-    def accelerations(self, t: float, y: np.ndarray) -> np.ndarray:
+    def accelerations(
+        self, t: float, y: np.ndarray, qv: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> np.ndarray:
         """Joint accelerations at (t, y) [rad/s^2], zero at the locked joints.
 
         ABA on the reduced model, or with ``full`` M_ff a_f = tau_f - b_f from the full model
-        (CRBA, RNEA, and a dense solve: n is small where this is used).
+        (CRBA, RNEA, and a dense solve: n is small where this is used). ``qv`` is the full
+        (q, v) of y if the caller has it already.
         """
         k = self.k
         a = np.zeros(self.robot.nv)
@@ -200,8 +203,9 @@ class Phase:
         tau_drive, tau_brake = self.torques(t, y[:k], y[k : 2 * k])
         free = self.topology.free
         if self.full:
-            M, b = self._mass_and_bias(*self.topology.merge(y[: 2 * k]))
-            a[free] = np.linalg.solve(M[free][:, free], tau_drive + tau_brake - b[free])
+            M, b = self._mass_and_bias(*(qv or self.topology.merge(y[: 2 * k])))
+            M_ff = M.take(self.topology.free_block).reshape(k, k)
+            a[free] = solve_small(M_ff, tau_drive + tau_brake - b[free])
         else:
             a[free] = pin.aba(
                 self.topology.model, self.topology.data, y[:k], y[k : 2 * k], tau_drive + tau_brake
@@ -238,7 +242,7 @@ class Phase:
         if last is not None and last[0] == t and last[1] == key:
             return last[2].copy()
         q, v = self.topology.merge(y[: 2 * self.k])
-        a = self.accelerations(t, y)
+        a = self.accelerations(t, y, (q, v))
         locked = self.topology.locked_index
         if self.full:  # M a + b at the locked joints, from the terms the accelerations used
             M, b = self._mass_and_bias(q, v)

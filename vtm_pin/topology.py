@@ -86,6 +86,8 @@ class Topology:
         self.free_mask = np.ones(nv, dtype=bool)
         self.free_mask[self.locked_index] = False
         self.free = np.flatnonzero(self.free_mask)
+        #: Flat indices of the free block of an (nv, nv) matrix: ``M.take(...)`` is M_ff.
+        self.free_block = (self.free[:, None] * nv + self.free).ravel()
         self._k = int(self.free.size)
         self._tau = np.zeros(self._k)
         self._model: pin.Model | None = None
