@@ -21,6 +21,8 @@ from .robot import Robot
 from .topology import Topology, full_data
 from .transitions import solve_saddle_point
 
+_SLIDING = frozenset({BrakeMode.FORWARD, BrakeMode.BACKWARD})
+
 
 class Phase:
     """Dynamics between two events.
@@ -64,9 +66,9 @@ class Phase:
         self._drive_f = on[free] if self.drive.acts else np.zeros(self.k, dtype=bool)
         self._sliding = (
             [
-                (f, int(j), brakes.brakes[int(j)])
-                for f, j in enumerate(free)
-                if self.modes[int(j)].sliding
+                (f, j, brakes.brakes[j])
+                for f, j in enumerate(free.tolist())
+                if self.modes[j] in _SLIDING
             ]
             if brakes
             else []

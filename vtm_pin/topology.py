@@ -9,6 +9,7 @@ and the locked joints' angles, and are built only when a phase first needs them.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -62,6 +63,20 @@ def reduced_model(
     return robot.cache.get(key, build)
 
 
+@functools.lru_cache(maxsize=1024)
+def _indices(nv: int, locked: tuple[int, ...]) -> tuple[np.ndarray, ...]:
+    """:class:`Topology`'s index arrays of a lock set (read only)."""
+    locked_index = np.array(locked, dtype=np.intp)
+    free_mask = np.ones(nv, dtype=bool)
+    free_mask[locked_index] = False
+    free = np.flatnonzero(free_mask)
+    free_block = (free[:, None] * nv + free).ravel()
+    out = (locked_index, free_mask, free, free_block)
+    for array in out:
+        array.flags.writeable = False
+    return out
+
+
 def _with_data(model: pin.Model) -> tuple[pin.Model, pin.Data]:
     return model, model.createData()
 
@@ -79,15 +94,11 @@ class Topology:
         self.robot = robot
         self.nv = nv = robot.nv
         self.locked = tuple(sorted(int(i) for i in locked))
-        #: ``locked`` as an index array [-].
-        self.locked_index = np.array(self.locked, dtype=np.intp)
+        #: ``locked`` as an index array [-]; per coordinate, whether it is free; the free
+        #: indices; the flat indices of the free block of an (nv, nv) matrix (``M.take(...)``
+        #: is M_ff). Read only: shared by the topologies of one lock set.
+        self.locked_index, self.free_mask, self.free, self.free_block = _indices(nv, self.locked)
         self.q_locked = np.asarray(q, dtype=float)[self.locked_index]
-        #: Per coordinate, whether it is free.
-        self.free_mask = np.ones(nv, dtype=bool)
-        self.free_mask[self.locked_index] = False
-        self.free = np.flatnonzero(self.free_mask)
-        #: Flat indices of the free block of an (nv, nv) matrix: ``M.take(...)`` is M_ff.
-        self.free_block = (self.free[:, None] * nv + self.free).ravel()
         self._k = int(self.free.size)
         self._tau = np.zeros(self._k)
         self._model: pin.Model | None = None
