@@ -8,7 +8,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from vtm_pin.exceptions import ScenarioError, excerpt
-from vtm_pin.inputs import MAX_DEPTH, MAX_FILE_BYTES, MAX_NODES, check_schema, read_yaml
+from vtm_pin.inputs import MAX_DEPTH, MAX_FILE_BYTES, MAX_NODES, _walk, check_schema, read_yaml
 
 SCHEMA = {
     "type": "object",
@@ -196,3 +196,17 @@ def test_checking_against_a_valid_base_raises_as_the_whole_check_does(key, inner
         return None
 
     assert outcome(valid=base) == outcome()
+
+
+def test_checking_against_a_valid_base_counts_every_value_of_the_case():
+    """A base at the value limit passes; a case that adds one value to it must not."""
+    from vtm_pin.scenario import SCHEMA as SCENARIO_SCHEMA
+
+    base = dict(read_yaml(SCENARIOS / "ur10_annex_b.yaml", ScenarioError))
+    base.pop("payload")
+    size = sum(1 for _ in _walk(base, [], "", ScenarioError))
+    base["assumptions"] = [*base["assumptions"], *["a"] * (MAX_NODES - size)]
+    check_schema(base, SCENARIO_SCHEMA, "base", ScenarioError)  # at the limit: passes
+    raw = {**base, "payload": {"mass": 5.0}}
+    with pytest.raises(ScenarioError, match=f"has more than {MAX_NODES} values"):
+        check_schema(raw, SCENARIO_SCHEMA, "case", ScenarioError, valid=base)

@@ -28,7 +28,9 @@ def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The solution x of A x = b for a small dense A.
 
     LAPACK's gesv (LU with partial pivoting), as ``np.linalg.solve`` calls it, without NumPy's
-    Python wrapper: about 1 instead of 4 us at n = 6.
+    Python wrapper: about 1 instead of 4 us at n = 6. For float64 A, shape (k, k), and b,
+    shape (k,), k >= 1. SciPy and NumPy ship their own LAPACK builds, so the two can differ in
+    the last bits (from k = 6 here); NaN in A or b gives NaN, as in NumPy.
 
     Raises:
         numpy.linalg.LinAlgError: A is singular (as ``np.linalg.solve`` raises).

@@ -213,7 +213,9 @@ def check_schema(
     Raises:
         InputError: (as ``error``) naming the key path, the value and what is allowed.
     """
-    if valid is not None and isinstance(raw, Mapping) and set(schema) <= _TOP_LEVEL:
+    # Over MAX_NODES values in all, the whole walk below refuses the document, as it would.
+    top = valid is not None and isinstance(raw, Mapping) and set(schema) <= _TOP_LEVEL
+    if valid is not None and top and _size(raw) <= MAX_NODES:
         # repr, not ==: 0 == False and 1 == 1.0, but the schema tells them apart
         same = {
             key for key, value in raw.items() if key in valid and repr(valid[key]) == repr(value)
@@ -269,6 +271,19 @@ def _check_keys(raw: Any, source: str, error: type[InputError], root: str) -> No
                         f"key {excerpt(key)} ({type(key).__name__}) is not a name: quote it "
                         f"('{excerpt(str(key))}')",
                     )
+
+
+def _size(raw: Any) -> int:
+    """How many values :func:`_walk` visits in a document (without building key paths)."""
+    stack, seen = [raw], 0
+    while stack:
+        value = stack.pop()
+        seen += 1
+        if isinstance(value, Mapping):
+            stack.extend(v for k, v in value.items() if isinstance(k, str))
+        elif isinstance(value, list):
+            stack.extend(value)
+    return seen
 
 
 def _walk(

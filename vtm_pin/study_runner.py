@@ -155,15 +155,12 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
             :mod:`vtm_pin.batch`) or ``scalar``.
     """
     from .batch import run_many
-    from .scenario import build_scenario, passes_schema
+    from .scenario import build_scenario
     from .study import resolve_case
 
     records: list[dict[str, Any]] = []
     built: list[tuple[dict[str, Any], Any]] = []
-    valid: dict[int, Mapping[str, Any] | None] = {}  # per base: itself if it passes the schema
     for task in tasks:
-        if id(task.base) not in valid:
-            valid[id(task.base)] = task.base if passes_schema(task.base) else None
         case = task.case
         record: dict[str, Any] = {"case": case.id, "index": case.index, "values": dict(case.values)}
         records.append(record)
@@ -177,7 +174,7 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
                 base_dir=Path(task.base_dir),
                 name=task.name,
                 loader=_ROBOTS,
-                valid=valid[id(task.base)],
+                valid=_valid_base(task.base),
             )
             built.append((record, scenario))
         except Exception as exc:
@@ -211,6 +208,23 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
         timing = record["timing"]
         record["wall_time"] = sum(timing.values())
     return records
+
+
+#: This process's study bases that pass the scenario schema (by their repr), and those that do
+#: not: a base is checked once, not once per case (a scalar study sends one case at a time).
+_BASES: dict[str, bool] = {}
+
+
+def _valid_base(base: Mapping[str, Any]) -> Mapping[str, Any] | None:
+    """``base`` if it passes the scenario schema (its cases are then checked against it)."""
+    from .scenario import passes_schema
+
+    key = repr(base)  # exact for parsed YAML: equal reprs, equal documents
+    if key not in _BASES:
+        if len(_BASES) >= 16:
+            _BASES.clear()
+        _BASES[key] = passes_schema(base)
+    return base if _BASES[key] else None
 
 
 def _record_result(record: dict[str, Any], scenario: Any, result: Any) -> None:
