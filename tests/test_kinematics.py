@@ -80,3 +80,13 @@ def test_another_frame_can_be_followed():
     elbow = pendulum_tip(q) - np.array([-np.sin(np.sum(q)), 0.0, -np.cos(np.sum(q))])
     positions = compute_tool_positions(robot("planar_3r"), q, "joint3")
     np.testing.assert_allclose(positions, [elbow], atol=FK_TOL)
+
+
+def test_tool_jacobians_of_many_configurations_are_those_of_each():
+    arm = robot("ur10")
+    rng = np.random.default_rng(3)
+    qs = rng.uniform(-np.pi, np.pi, (4, arm.nv))
+    many = compute_tool_jacobian(arm, qs)
+    assert many.shape == (4, 3, arm.nv)
+    for q, J in zip(qs, many, strict=True):
+        np.testing.assert_array_equal(J, compute_tool_jacobian(arm, q))

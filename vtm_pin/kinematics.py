@@ -53,8 +53,13 @@ def compute_tool_positions(
 
 
 def compute_tool_jacobian(robot: Robot, q: np.ndarray, tool_frame: str | None = None) -> np.ndarray:
-    """Linear Jacobian of the tool frame's origin in world axes [m/rad], shape (3, n), at ``q``."""
+    """Linear Jacobian of the tool frame's origin in world axes [m/rad] at ``q`` [rad].
+
+    Shape (3, n) for one configuration, shape (n,); (k, 3, n) for k of them, shape (k, n).
+    """
     model = robot.model
+    data = model.createData()
     fid = model.getFrameId(tool_frame or robot.tool_frame)
-    J = pin.computeFrameJacobian(model, model.createData(), np.asarray(q, dtype=float), fid, _LWA)
-    return np.asarray(J[:3])
+    qs = np.asarray(q, dtype=float)
+    J = [pin.computeFrameJacobian(model, data, qi, fid, _LWA)[:3] for qi in np.atleast_2d(qs)]
+    return np.asarray(J[0] if qs.ndim == 1 else J)

@@ -161,10 +161,12 @@ def compute_stopping_report(
 
     path, speed = compute_tool_motion(robot, result.q, result.v, tool_frame)
     tcp_surge = 0.0
-    for event in result.events:
-        jac = compute_tool_jacobian(robot, event.q, tool_frame)
-        jump = np.linalg.norm(jac @ event.v_plus) - np.linalg.norm(jac @ event.v_minus)
-        tcp_surge = max(tcp_surge, float(jump))
+    events = result.events
+    if events:
+        jacobians = compute_tool_jacobian(robot, np.array([e.q for e in events]), tool_frame)
+        for event, jac in zip(events, jacobians, strict=True):
+            jump = np.linalg.norm(jac @ event.v_plus) - np.linalg.norm(jac @ event.v_minus)
+            tcp_surge = max(tcp_surge, float(jump))
     rest_speed = result.stop.rest_speed if result.stop is not None else DEFAULT_REST_SPEED
     stop_time = [
         _rest_time(result.t[i0:], result.v[i0:, j], rest_speed) - t_signal for j in range(n)
