@@ -220,11 +220,13 @@ def _valid_base(base: Mapping[str, Any]) -> Mapping[str, Any] | None:
     from .scenario import passes_schema
 
     key = repr(base)  # exact for parsed YAML: equal reprs, equal documents
-    if key not in _BASES:
+    ok = _BASES.get(key)
+    if ok is None:
+        ok = passes_schema(base)
         if len(_BASES) >= 16:
             _BASES.clear()
-        _BASES[key] = passes_schema(base)
-    return base if _BASES[key] else None
+        _BASES[key] = ok
+    return base if ok else None
 
 
 def _record_result(record: dict[str, Any], scenario: Any, result: Any) -> None:
