@@ -308,7 +308,7 @@ class BrakeMachine:
                     # The stick decision's own test (with its round-off), so a joint that
                     # stuck starts with a margin >= 0 and its slip is always a crossing.
                     hold = holding(t, y)
-                    scale = max(1.0, float(np.max(np.abs(hold))))
+                    scale = max(1.0, float(np.abs(hold).max()))
                     return self.static(t, j) + ROUNDOFF * scale - abs(hold[j])
 
                 events.append(BrakeStateEvent(StateEventKind.SLIP, j, StateEvent(margin, -1)))
@@ -362,7 +362,7 @@ class BrakeMachine:
         Accelerations within round-off (1e-9 of the largest) count as none.
         """
         a = world.accelerations(t)
-        tolerance = ROUNDOFF * max(1.0, float(np.max(np.abs(a)))) if a.size else 0.0
+        tolerance = ROUNDOFF * max(1.0, float(np.abs(a).max())) if a.size else 0.0
         for i in joints:
             if i not in world.locked and a[i] * self.modes[i].sign < -tolerance:
                 return i
@@ -454,5 +454,5 @@ def _holdable(hold: float, limit: float, holds: np.ndarray) -> bool:
     times it) counts as none: a brake whose normal force is still 0 at engagement then
     holds a joint with no load, instead of starting it in the direction of a round-off sign.
     """
-    scale = max(1.0, float(np.max(np.abs(holds)))) if holds.size else 1.0
+    scale = max(1.0, float(np.abs(holds).max())) if holds.size else 1.0
     return abs(hold) <= limit + ROUNDOFF * scale
