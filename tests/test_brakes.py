@@ -264,3 +264,17 @@ def test_category_one_resting_joints_stay_at_rest_when_the_brakes_engage():
     assert np.all(result.v[after][:, 1:] == 0.0)
     assert result.brake_work[-1] >= 0.0 and np.min(np.diff(result.brake_work)) >= -1e-12
     assert np.all(result.v[-1] == 0.0)
+
+
+@pytest.mark.parametrize(
+    "mode, sliding, sign",
+    [
+        (BrakeMode.FREE, False, 0.0),
+        (BrakeMode.FORWARD, True, 1.0),
+        (BrakeMode.BACKWARD, True, -1.0),
+        (BrakeMode.STUCK, False, 0.0),
+        (BrakeMode.LOCKED, False, 0.0),
+    ],
+)
+def test_a_mode_says_whether_it_slides_and_which_way(mode, sliding, sign):
+    assert mode.sliding is sliding and mode.sign == sign

@@ -47,12 +47,16 @@ class BrakeMode(IntEnum):
     @property
     def sliding(self) -> bool:
         """Whether the brake is sliding (kinetic friction acts)."""
-        return self in (BrakeMode.FORWARD, BrakeMode.BACKWARD)
+        return self.value in (1, 2)  # FORWARD, BACKWARD
 
     @property
     def sign(self) -> float:
         """+1 when sliding forward, -1 backward, 0 otherwise."""
-        return {BrakeMode.FORWARD: 1.0, BrakeMode.BACKWARD: -1.0}.get(self, 0.0)
+        return _SIGNS[self.value]
+
+
+#: BrakeMode.sign by the mode's value.
+_SIGNS = (0.0, 1.0, -1.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)

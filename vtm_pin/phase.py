@@ -73,7 +73,7 @@ class Phase:
             if brakes
             else []
         )
-        self._signs = {int(j): self.modes[int(j)].sign for _, j, _ in self._sliding}
+        self._signs = {j: self.modes[j].sign for _, j, _ in self._sliding}
         self._full_data = full_data(robot)
         self._last_hold: tuple[float, bytes, np.ndarray] | None = None
         #: No torque acts: y is (q_f, v_f) only and the accumulators stay constant.
