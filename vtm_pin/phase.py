@@ -21,8 +21,6 @@ from .robot import Robot
 from .topology import Topology, full_data
 from .transitions import solve_saddle_point
 
-_SLIDING = frozenset({BrakeMode.FORWARD, BrakeMode.BACKWARD})
-
 
 class Phase:
     """Dynamics between two events.
@@ -65,11 +63,7 @@ class Phase:
         on = np.zeros(n, dtype=bool) if drive_on is None else np.asarray(drive_on, dtype=bool)
         self._drive_f = on[free] if self.drive.acts else np.zeros(self.k, dtype=bool)
         self._sliding = (
-            [
-                (f, j, brakes.brakes[j])
-                for f, j in enumerate(free.tolist())
-                if self.modes[j] in _SLIDING
-            ]
+            [(f, j, brakes.brakes[j]) for f, j in enumerate(free.tolist()) if self.modes[j].sliding]
             if brakes
             else []
         )
