@@ -1,0 +1,163 @@
+"""A study's throughput floor: what one case costs, against a wall-time target.
+
+Runs the first ``--cases`` samples of a study (default ``studies/ur10_envelope.yaml``) in this
+process, one worker's way; by default as many as one batch of the target's study,
+``min(BATCH_CASES, total / (4 x workers))``, 1,250 for 10,000 cases on 2 workers. It reports
+the records' mean build, simulate and report times (their sum is what a worker spends) [ms] from
+:func:`vtm_pin.study_runner.run_cases` (batched engine, one chunk), and the batched engine's
+states and Pinocchio passes per case from :func:`vtm_pin.batch.run_many` on the same cases. It times
+``pin.rneaInParallel`` and ``pin.abaInParallel`` (1 thread, as in a worker) on batches of the
+study's model states, of the engine's mean batch size, and the import of the command
+(``import vtm_pin.cli`` in a fresh interpreter, less an empty one).
+
+From these it prints a budget: a target of ``--target`` s for ``--total`` cases on
+``--workers`` single-threaded workers leaves (target - import) x workers / total core-ms a
+case, before the outputs (table, graphs, report) and the workers' start, which it does not
+count, so the budget is an upper bound. The Pinocchio floor (the states a case evaluates:
+right-hand sides and output samples, x the cheaper of the two per-state costs) is a lower
+bound of any engine that evaluates them once each with these algorithms.
+
+    OMP_NUM_THREADS=1 python benchmarks/study_floor.py [--cases N] [--target 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from vtm_pin.batch import run_many
+from vtm_pin.results import SimulationResult
+from vtm_pin.robot import RobotCache
+from vtm_pin.scenario import build_scenario
+from vtm_pin.study import find_study, load_study, resolve_case
+from vtm_pin.study_runner import BATCH_CASES, CaseTask, run_cases
+
+#: Repeats of each timing whose median is quoted.
+REPEATS = 7
+#: The per-case timing split of a study's records.
+PARTS = ("build", "simulate", "report")
+
+
+def import_seconds() -> float:
+    """Median wall time [s] of ``import vtm_pin.cli`` in a fresh interpreter, less startup."""
+
+    def once(code: str) -> float:
+        begin = time.perf_counter()
+        subprocess.run([sys.executable, "-c", code], check=True)
+        return time.perf_counter() - begin
+
+    bare = statistics.median(once("pass") for _ in range(REPEATS))
+    return statistics.median(once("import vtm_pin.cli") for _ in range(REPEATS)) - bare
+
+
+def per_state(model: pin.Model, batch: int) -> dict[str, float]:
+    """Median wall time per state [us] of RNEA and ABA in parallel, 1 thread, ``batch`` states."""
+    rng = np.random.default_rng(14)
+    q = rng.uniform(-np.pi, np.pi, (model.nq, batch))
+    v = rng.uniform(-1.0, 1.0, (model.nv, batch))
+    x = rng.uniform(-1.0, 1.0, (model.nv, batch))
+    pool = pin.ModelPool(model, 1)
+    out = {}  # [us]
+    for name, algorithm in (("rnea", pin.rneaInParallel), ("aba", pin.abaInParallel)):
+        times = []
+        for _ in range(REPEATS):
+            begin = time.perf_counter()
+            for _ in range(20):
+                algorithm(1, pool, q, v, x)
+            times.append(1e6 * (time.perf_counter() - begin) / (20 * batch))
+        out[name] = statistics.median(times)
+    return out
+
+
+def case_times(tasks: list[CaseTask]) -> dict[str, float]:
+    """Mean build, simulate and report time of the cases [ms] (a worker's batch, warmed)."""
+    run_cases(tasks[:50])  # warm: the robots, reaches and schema memo a worker keeps
+    ok = [r for r in run_cases(tasks) if r.get("status") == "ok"]
+    return {p: 1e3 * statistics.fmean(r["timing"][p] for r in ok) for p in PARTS}
+
+
+def pinocchio_work(tasks: list[CaseTask]) -> tuple[float, float, int, pin.Model]:
+    """Per case, the states evaluated and the batched engine's Pinocchio passes; batch size.
+
+    The states are the right-hand sides and the output samples (whose holding torques the
+    table reads): an engine evaluates each at least once. The batched engine takes 1 + k RNEA
+    passes for a state with locks (b and k free columns of M).
+    """
+    robots = RobotCache()
+    scenarios = [
+        build_scenario(
+            resolve_case(t.base, t.case.values),
+            source="floor",
+            base_dir=Path(t.base_dir),
+            name="floor",
+            loader=robots,
+        )
+        for t in tasks
+    ]
+    outcome = run_many(
+        [s.problem for s in scenarios],
+        [s.integrator for s in scenarios],
+        transition=scenarios[0].transition,
+    )
+    results = [r for r in outcome.results if isinstance(r, SimulationResult)]
+    states = statistics.fmean(r.rhs_evals + len(r.t) for r in results)
+    batch = max(1, outcome.states // outcome.calls)
+    return states, outcome.states / len(tasks), batch, scenarios[0].problem.robot.model
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--study", default="ur10_envelope", help="study file or shipped name")
+    parser.add_argument("--cases", type=int, default=None, help="cases measured [-]")
+    parser.add_argument("--target", type=float, default=10.0, help="wall-time target [s]")
+    parser.add_argument("--total", type=int, default=10_000, help="cases of the target [-]")
+    parser.add_argument("--workers", type=int, default=2, help="workers of the target [-]")
+    args = parser.parse_args()
+    study = load_study(find_study(args.study))
+    batch = min(BATCH_CASES, math.ceil(args.total / (4 * args.workers)))
+    tasks = [
+        CaseTask(study.base, str(study.scenario.parent), str(study.scenario), "floor", c)
+        for c in study.cases()[: args.cases or batch]
+    ]
+    split = case_times(tasks)
+    states, passes, size, model = pinocchio_work(tasks)
+    cost = per_state(model, size)
+    floor = 1e-3 * states * min(cost.values())  # [ms]: us x states
+    load = import_seconds()
+    budget = 1e3 * (args.target - load) * args.workers / args.total
+    measured = sum(split.values())
+    print(f"study {study.name}: {len(tasks)} of its cases in this process; OMP_NUM_THREADS=1")
+    print(
+        f"Pinocchio per state, 1 thread, batches of {size}: RNEA {cost['rnea']:.2f} us, "
+        f"ABA {cost['aba']:.2f} us; a case: {states:.0f} states (right-hand sides and output "
+        f"samples), {passes:.0f} passes in the batched engine"
+    )
+    print(
+        f"target: {args.total} cases in {args.target:g} s on {args.workers} workers; import "
+        f"{load:.2f} s; budget {budget:.2f} core-ms a case (outputs and worker start not counted)"
+    )
+    print(f"{'per case':<46} {'[ms]':>7} {'x budget':>9}")
+    rows = [
+        (f"Pinocchio floor ({states:.0f} states x {min(cost.values()):.2f} us)", floor),
+        (f"Pinocchio, the engine's {passes:.0f} passes", 1e-3 * passes * min(cost.values())),
+        *((f"{p} (mean)", value) for p, value in split.items()),
+        ("build + simulate + report", measured),
+        ("everything but the Pinocchio floor", measured - floor),
+    ]
+    for label, value in rows:
+        print(f"{label:<46} {value:>7.2f} {value / budget:>9.2f}")
+    room = budget - floor
+    need = f"{(measured - floor) / room:.1f}x" if room > 0 else "impossible (floor over budget)"
+    print(f"cut needed in everything but the Pinocchio floor to meet the target: {need}")
+
+
+if __name__ == "__main__":
+    main()
