@@ -27,11 +27,12 @@ import math
 import statistics
 import subprocess
 import sys
-import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+from benchlib import median_time
 
 from vtm_pin.batch import run_many
 from vtm_pin.results import SimulationResult
@@ -40,8 +41,6 @@ from vtm_pin.scenario import build_scenario
 from vtm_pin.study import find_study, load_study, resolve_case
 from vtm_pin.study_runner import BATCH_CASES, CaseTask, run_cases
 
-#: Repeats of each timing whose median is quoted.
-REPEATS = 7
 #: The per-case timing split of a study's records.
 PARTS = ("build", "simulate", "report")
 
@@ -49,13 +48,10 @@ PARTS = ("build", "simulate", "report")
 def import_seconds() -> float:
     """Median wall time [s] of ``import vtm_pin.cli`` in a fresh interpreter, less startup."""
 
-    def once(code: str) -> float:
-        begin = time.perf_counter()
-        subprocess.run([sys.executable, "-c", code], check=True)
-        return time.perf_counter() - begin
+    def run(code: str) -> Callable[[], object]:
+        return lambda: subprocess.run([sys.executable, "-c", code], check=True)
 
-    bare = statistics.median(once("pass") for _ in range(REPEATS))
-    return statistics.median(once("import vtm_pin.cli") for _ in range(REPEATS)) - bare
+    return median_time(run("import vtm_pin.cli")) - median_time(run("pass"))
 
 
 def per_state(model: pin.Model, batch: int) -> dict[str, float]:
@@ -65,16 +61,11 @@ def per_state(model: pin.Model, batch: int) -> dict[str, float]:
     v = rng.uniform(-1.0, 1.0, (model.nv, batch))
     x = rng.uniform(-1.0, 1.0, (model.nv, batch))
     pool = pin.ModelPool(model, 1)
-    out = {}  # [us]
-    for name, algorithm in (("rnea", pin.rneaInParallel), ("aba", pin.abaInParallel)):
-        times = []
-        for _ in range(REPEATS):
-            begin = time.perf_counter()
-            for _ in range(20):
-                algorithm(1, pool, q, v, x)
-            times.append(1e6 * (time.perf_counter() - begin) / (20 * batch))
-        out[name] = statistics.median(times)
-    return out
+    algorithms = {"rnea": pin.rneaInParallel, "aba": pin.abaInParallel}
+    return {
+        name: 1e6 * median_time(lambda f=f: f(1, pool, q, v, x)) / batch
+        for name, f in algorithms.items()
+    }
 
 
 def case_times(tasks: list[CaseTask]) -> dict[str, float]:
