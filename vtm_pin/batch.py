@@ -22,7 +22,8 @@ locked, where the k x k solve is small. The multipliers lambda are the locks' ho
 torques, which the brakes' slip events and the results need.
 
 What the batched engine steps: intervals without frame constraints or acting drives, with
-Coulomb brakes (and ideal locks, which are transitions, not dynamics), integrated by dop853.
+Coulomb or viscous brakes (and ideal locks, which are transitions, not dynamics) and the
+motors' short-circuit braking, integrated by dop853.
 A run that needs anything else (see :func:`fallback_reason`) is run by the scalar engine.
 """
 
@@ -39,11 +40,12 @@ import pinocchio as pin
 
 from .brakes import ROUNDOFF, BrakeMode, StateEventKind
 from .exceptions import SimulationError, StepLimitError, VtmError
-from .friction import Coulomb
+from .friction import Coulomb, Viscous
 from .integrators import DOP853, Segment
 from .integrators import dop853_coefficients as coef
 from .integrators.dop853 import _EXPONENT, _MAX_FACTOR, _MIN_FACTOR, _SAFETY, _Grid, dense_weights
 from .integrators.fixed_step import locate
+from .phase import WORKS
 from .problem import Problem
 from .results import SimulationResult
 from .simulation import SegmentRequest, hybrid_run
@@ -80,8 +82,10 @@ def fallback_reason(problem: Problem, integrator: object) -> str | None:
     if stop is not None and stop.t > 0.0:
         return "drives act before the stop signal (stop.t > 0)"
     for brake in problem.brakes:
-        if not brake.ideal and type(brake.friction) is not Coulomb:
-            return f"{brake.friction.name} brake friction (the batched engine has Coulomb)"
+        if not brake.ideal and type(brake.friction) not in (Coulomb, Viscous):
+            return (
+                f"{brake.friction.name} brake friction (the batched engine has Coulomb and viscous)"
+            )
     return None
 
 
@@ -196,8 +200,8 @@ def _solve_each(A: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 class _Lanes:
     """The runs' current intervals, one row (lane) per run, in the padded state layout.
 
-    The padded state of a run with n joints is (q, v, W_brake, W_drive, P_brake), 3n + 2
-    values; a locked joint keeps its q and v = 0 with zero rates. Which entries are the
+    The padded state of a run with n joints is (q, v, W_brake, W_drive, W_short, P_brake),
+    3n + 3 values; a locked joint keeps its q and v = 0 with zero rates. Which entries are the
     interval's own (the scalar engine's y) is ``active``; the error norms use those only.
     """
 
@@ -205,7 +209,7 @@ class _Lanes:
     size: int
 
     def __post_init__(self) -> None:
-        n, b, ny = self.n, self.size, 3 * self.n + 2
+        n, b, ny = self.n, self.size, 3 * self.n + WORKS
         self.ny = ny
         self.y = np.zeros((b, ny))
         self.fy = np.zeros((b, ny))
@@ -218,6 +222,9 @@ class _Lanes:
         self.sign = np.zeros((b, n))
         self.ratio = np.ones((b, n))
         self.torque = np.zeros((b, n))  # motor side sliding torque [N m]
+        self.viscous = np.zeros((b, n))  # 1 / viscous velocity [s/rad], 0: Coulomb
+        self.short_torque = np.zeros((b, n))  # short-circuit peak torque where shorted [N m]
+        self.short_speed = np.ones((b, n))  # its motor speed [rad/s]
         self.breakaway = np.zeros((b, n))  # motor side static torque [N m]
         self.ramp = np.zeros((b, n))
         self.engaged = np.zeros((b, n))
@@ -293,14 +300,22 @@ class BatchEngine:
         n = self.n
         start = time.perf_counter()
         q, v = y[:, :n], y[:, n : 2 * n]
+        ratio = lanes.ratio[rows]
         factor = _ramp_factor(lanes, rows, t)
-        tau = -lanes.sign[rows] * (lanes.ratio[rows] * (factor * lanes.torque[rows]))
-        a, lam = self.dynamics.accelerations(q, v, tau, lanes.locked[rows])
+        motor = ratio * v  # motor speeds [rad/s]
+        sign = lanes.sign[rows]
+        slip = np.maximum(sign * motor, 0.0)  # [rad/s] motor side, as Viscous.kinetic
+        kinetic = lanes.torque[rows] * (1.0 + slip * lanes.viscous[rows])
+        tau = -sign * (ratio * (factor * kinetic))
+        x = motor / lanes.short_speed[rows]
+        tau_short = -ratio * lanes.short_torque[rows] * (2.0 * x / (1.0 + x * x))
+        a, lam = self.dynamics.accelerations(q, v, tau + tau_short, lanes.locked[rows])
         out = np.zeros_like(y)
         out[:, :n] = v
         out[:, n : 2 * n] = a
         out[:, 2 * n] = -np.einsum("bi,bi->b", tau, v)
-        out[:, 2 * n + 2 :] = tau
+        out[:, 2 * n + 2] = -np.einsum("bi,bi->b", tau_short, v)
+        out[:, 2 * n + WORKS :] = tau
         self.seconds["dynamics"] += time.perf_counter() - start
         return out, lam
 
@@ -363,11 +378,11 @@ class BatchEngine:
         topology = phase.topology
         free = topology.free
         locked = np.array(topology.locked, dtype=int)
-        y = np.zeros(3 * n + 2)
+        y = np.zeros(3 * n + WORKS)
         y[free] = request.y0[:k]
         y[locked] = topology.q_locked
         y[n + free] = request.y0[k : 2 * k]
-        extras = np.arange(2 * n, 3 * n + 2)
+        extras = np.arange(2 * n, 3 * n + WORKS)
         reduced = [free, n + free] if phase.passive else [free, n + free, extras]
         if not phase.passive:
             y[extras] = request.y0[2 * k :]
@@ -394,6 +409,7 @@ class BatchEngine:
         """Sliding signs, torques, ramps and the state events of run ``b``'s phase."""
         lanes.sign[b] = 0.0
         lanes.event_kind[b] = 0
+        lanes.short_torque[b], lanes.short_speed[b] = phase.shorted()  # type: ignore[attr-defined]
         machine = phase.machine  # type: ignore[attr-defined]
         if machine is None:
             return
@@ -402,9 +418,11 @@ class BatchEngine:
             lanes.ratio[b, j] = machine.ratio[j]
             lanes.engaged[b, j] = engaged.get(j, 0.0)
             if not brake.ideal:
-                lanes.torque[b, j] = brake.friction.sliding_torque
-                lanes.breakaway[b, j] = brake.friction.breakaway_torque
-                lanes.ramp[b, j] = brake.friction.ramp
+                friction = brake.friction
+                lanes.torque[b, j] = friction.sliding_torque
+                lanes.breakaway[b, j] = friction.breakaway_torque
+                lanes.ramp[b, j] = friction.ramp
+                lanes.viscous[b, j] = 1.0 / getattr(friction, "viscous_velocity", math.inf)
             if modes[j].sliding and not lanes.locked[b, j]:
                 lanes.sign[b, j] = modes[j].sign
         for index, event in enumerate(phase.events):  # type: ignore[attr-defined]

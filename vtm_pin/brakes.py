@@ -97,10 +97,12 @@ class Brake:
 
         Args:
             elapsed: Time since engagement [s].
-            v: Joint rate [rad/s]; the law sees the motor speed ratio |v|.
+            v: Joint rate in the direction of sliding [rad/s] (>= 0 while it slides; an
+                integrator stepping past the instant it reaches rest sees it slightly below
+                0, where the law continues smoothly); the law sees the motor speed ratio v.
             ratio: The joint's gear ratio [-].
         """
-        return ratio * self.friction.sliding(elapsed, ratio * abs(v))
+        return ratio * self.friction.sliding(elapsed, ratio * v)
 
     def static(self, elapsed: float, ratio: float) -> float:
         """Joint-side static (holding) torque limit [N m], ``elapsed`` s after engagement."""
@@ -248,8 +250,12 @@ class BrakeMachine:
                 limit): a stuck one among them is released even within round-off of it.
         """
         self._held_by_motion: set[int] = set()  # stuck in step 3, by the acceleration test
-        self._follow_reversals(t, world)
-        resting = self._resting(world)
+        # A sliding joint whose zero-velocity event fired now is at rest, whatever rate its
+        # event location left (|a| times the located instant's error: a stiff brake on a light
+        # joint leaves more than REST_RATE, which would read as a reversal and chatter).
+        arrived = {i for i in due if self.modes[i].sliding}
+        self._follow_reversals(t, world, arrived)
+        resting = self._resting(world, arrived)
         if resting:
             forced = {i for i in due if i in world.locked}  # at the static limit now
             released = self._hold_or_release(t, world, resting, forced)
@@ -396,22 +402,26 @@ class BrakeMachine:
         if joints:
             world.stick(t, joints)
 
-    def _follow_reversals(self, t: float, world: BrakeWorld) -> None:
-        """Sliding joints whose rate has the other sign (after a jump) slide the other way."""
+    def _follow_reversals(self, t: float, world: BrakeWorld, arrived: set[int]) -> None:
+        """Sliding joints whose rate has the other sign (after a jump) slide the other way.
+
+        Joints that ``arrived`` at rest now (their zero-velocity event) are not reversals.
+        """
         for i in self.engaged:
             mode, moving = self.modes[i], mode_of_motion(float(world.v[i]))
-            if i in world.locked or moving is None or mode is moving:
+            if i in world.locked or i in arrived or moving is None or mode is moving:
                 continue
             if mode.sliding or mode is BrakeMode.FREE:
                 self.modes[i] = moving
                 v = float(world.v[i])
                 self.events.append(BrakeEvent(t, self.joints[i], BrakeEventKind.REVERSE, v))
 
-    def _resting(self, world: BrakeWorld) -> list[int]:
+    def _resting(self, world: BrakeWorld, arrived: set[int]) -> list[int]:
         """Braked joints at rest that need the stick/slip decision (their rates set to 0).
 
-        Stuck joints, and engaged joints at rest (|v| <= REST_RATE) that are free or
-        sliding; not ideal brakes, nor joints locked by a prescribed lock.
+        Stuck joints, joints that ``arrived`` at rest now, and engaged joints at rest
+        (|v| <= REST_RATE) that are free or sliding; not ideal brakes, nor joints locked by a
+        prescribed lock.
         """
         resting = []
         self._v_event.clear()
@@ -419,7 +429,8 @@ class BrakeMachine:
             mode = self.modes[i]
             if mode is BrakeMode.LOCKED or (i in world.locked and mode is not BrakeMode.STUCK):
                 continue
-            if mode is BrakeMode.STUCK or mode_of_motion(float(world.v[i])) is None:
+            at_rest = i in arrived or mode_of_motion(float(world.v[i])) is None
+            if mode is BrakeMode.STUCK or at_rest:
                 resting.append(i)
                 self._v_event[i] = float(world.v[i])
                 world.v[i] = 0.0

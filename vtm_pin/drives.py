@@ -1,11 +1,12 @@
 """Drive laws: the joint torques of the drives on the free joints during one phase.
 
-A law is one small class with :meth:`DriveLaw.torques`. Three are built in: drives off, drives
-holding the joint rates constant (before a stop signal: tau = RNEA(q, v, 0)), and the
-category-1 ramp (a computed-torque law taking the rates from their value at the signal
-linearly to zero over ``ramp_time``, with velocity feedback, clipped at ``torque_limit``).
-Which joints' drives act is decided by the stop's timeline (a drive goes off when its brake
-engages), not by the law.
+A law is one small class with :meth:`DriveLaw.torques`. Four are built in: drives off, drives
+holding the joint rates constant (before a stop signal: tau = RNEA(q, v, 0)), the category-1
+ramp (a computed-torque law taking the rates from their value at the signal linearly to zero
+over ``ramp_time``, with velocity feedback, clipped at ``torque_limit``), and the motors'
+short-circuit (dynamic) braking once a drive has dropped out (:class:`ShortCircuit`). Which
+joints' drives act is decided by the stop's timeline (a drive goes off when its brake engages,
+and every drive at a category-0 signal), not by the law.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from .exceptions import BrakeError
+from .robot import Robot
 from .stop import Stop
 
 
@@ -129,3 +132,108 @@ class DriveRamp(DriveLaw):
         a_ref = -self.v_signal / stop.ramp_time if s < 1.0 else 0.0 * v_f
         tau = pin.rnea(model, data, q_f, v_f, a_ref + stop.gain * (v_ref - v_f))
         return np.asarray(np.clip(tau, -self.limit, self.limit))
+
+
+@dataclass(frozen=True, eq=False)
+class ShortCircuit(DriveLaw):
+    r"""Motor short-circuit (dynamic) braking: the windings shorted once the drive drops out.
+
+    A permanent-magnet synchronous motor whose terminals are shorted brakes with the torque of
+    its own back-EMF driving current through the winding resistance. Its steady-state
+    equivalent circuit (back-EMF constant psi, resistance R, inductance L, p pole pairs; the
+    torque-speed curve drive vendors publish for "armature short-circuit" or "dynamic"
+    braking) gives, motor side,
+
+    .. math:: T(\omega) = T_{pk} \frac{2\, \omega / \omega_{pk}}{1 + (\omega / \omega_{pk})^2},
+              \qquad \omega_{pk} = \frac{R}{p L},\quad T_{pk} = \frac{3 p \psi^2}{4 L},
+
+    proportional to the speed at low speed, largest (T_pk) at the characteristic speed
+    omega_pk, falling as 1/omega above it. It always opposes the motion, and its power T omega
+    is dissipated in the winding resistance: the law only ever removes energy. On the joint
+    side, through the gear ratio N: tau = -N T(N v). It acts from the moment the joint's drive
+    drops out (the category-0 signal; in category 1, when its brake engages) until the joint
+    is at rest, and is zero at rest, so it needs no events.
+
+    Attributes:
+        peak_torque: T_pk per joint, motor side [N m], >= 0 (0: no short-circuit braking).
+        peak_speed: omega_pk per joint, motor side [rad/s], > 0.
+        ratio: Gear ratio per joint [-].
+
+    Raises:
+        BrakeError: A figure out of range, or arrays of different lengths.
+    """
+
+    peak_torque: np.ndarray
+    peak_speed: np.ndarray
+    ratio: np.ndarray
+
+    def __post_init__(self) -> None:
+        arrays = [
+            np.array(getattr(self, k), dtype=float) for k in ("peak_torque", "peak_speed", "ratio")
+        ]
+        if len({a.shape for a in arrays}) != 1 or arrays[0].ndim != 1:
+            raise BrakeError("short-circuit braking needs one figure of each kind per joint")
+        torque, speed, ratio = arrays
+        if not (np.all(np.isfinite(torque)) and np.all(torque >= 0.0)):
+            raise BrakeError("short-circuit peak torques must be finite numbers >= 0 N m")
+        if not (np.all(np.isfinite(speed)) and np.all(speed > 0.0)):
+            raise BrakeError("short-circuit peak speeds must be finite numbers > 0 rad/s")
+        if not (np.all(np.isfinite(ratio)) and np.all(ratio > 0.0)):
+            raise BrakeError("gear ratios must be finite numbers > 0")
+        for name, array in zip(("peak_torque", "peak_speed", "ratio"), arrays, strict=True):
+            array.flags.writeable = False
+            object.__setattr__(self, name, array)
+
+    @property
+    def present(self) -> np.ndarray:
+        """Per joint, whether its motor brakes when shorted (peak torque > 0)."""
+        return np.asarray(self.peak_torque > 0.0)
+
+    def bind(self, free: np.ndarray) -> ShortCircuit:
+        """The law for the free joints ``free``."""
+        return ShortCircuit(self.peak_torque[free], self.peak_speed[free], self.ratio[free])
+
+    def joint_torque(self, v: np.ndarray) -> np.ndarray:
+        """Joint-side torques -N T(N v) [N m] at joint rates ``v`` [rad/s] (any shape (..., k))."""
+        x = self.ratio * v / self.peak_speed
+        return -self.ratio * self.peak_torque * (2.0 * x / (1.0 + x * x))
+
+    def torques(
+        self,
+        model: pin.Model,
+        data: pin.Data,
+        t: float,
+        q_f: np.ndarray,
+        v_f: np.ndarray,
+    ) -> np.ndarray:
+        """Short-circuit braking torques [N m] of the free joints."""
+        return np.asarray(self.joint_torque(v_f))
+
+    @property
+    def acts(self) -> bool:
+        """Whether some joint's motor brakes."""
+        return bool(self.present.any())
+
+    def describe(self, joints: tuple[str, ...]) -> dict[str, dict[str, float]]:
+        """Figures of the joints whose motors brake, for summary.json (motor side, SI)."""
+        return {
+            name: {
+                "peak_torque": float(self.peak_torque[i]),
+                "peak_speed": float(self.peak_speed[i]),
+            }
+            for i, name in enumerate(joints)
+            if self.peak_torque[i] > 0.0
+        }
+
+
+def short_circuit(robot: Robot) -> ShortCircuit | None:
+    """The short-circuit braking of the robot's motors (its drives' figures); None if none."""
+    n = robot.nv
+    torque, speed = np.zeros(n), np.ones(n)
+    for joint, drive in robot.drives.items():
+        if drive.short_circuit_torque > 0.0:
+            i = robot.joint_index(joint)
+            torque[i], speed[i] = drive.short_circuit_torque, drive.short_circuit_speed
+    if not torque.any():
+        return None
+    return ShortCircuit(torque, speed, np.asarray(robot.gear_ratio, dtype=float))

@@ -2,12 +2,16 @@
 
 A law is one small class: :meth:`FrictionLaw.kinetic` (sliding torque at full normal force as a
 function of the motor speed) and :attr:`FrictionLaw.breakaway_torque` (the static limit). The
-base class applies the normal-force ramp after engagement to both. Two laws are built in:
+base class applies the normal-force ramp after engagement to both. Three laws are built in:
 
 * :class:`Coulomb`: constant kinetic torque, static torque >= kinetic;
 * :class:`Stribeck`: the kinetic torque falls from the static torque at rest to the Coulomb
   torque at speed, tau(w) = tau_c + (tau_s - tau_c) exp(-(w / w_s)^2); it equals Coulomb at
-  large speeds and tends to it as the Stribeck speed w_s goes to 0.
+  large speeds and tends to it as the Stribeck speed w_s goes to 0;
+* :class:`Viscous`: the kinetic torque grows with the slip speed, tau(w) = tau_c (1 + w / w_v),
+  so that a stop decelerates hardest at its start.
+
+Every law's kinetic torque is >= 0 and opposes the slip, so a brake only ever removes energy.
 
 An ideal brake is not a law with infinite torque but :class:`IdealLock`: the joint locks at
 engagement with the paper's momentum-consistent jump. Torques are motor side [N m]; the robot's
@@ -46,12 +50,18 @@ class FrictionLaw(ABC):
 
     @abstractmethod
     def kinetic(self, speed: float) -> float:
-        """Kinetic torque at full normal force [N m], at motor speed ``speed`` >= 0 [rad/s]."""
+        """Kinetic torque at full normal force [N m], at motor slip speed ``speed`` [rad/s].
+
+        ``speed`` is >= 0 while the brake slides; just past the instant the joint reaches rest
+        an integrator's trial states give it slightly below 0, where a law must stay >= 0
+        (dissipative) and continue as smoothly as it can, so that the step's error estimate is
+        not misled.
+        """
 
     @property
     @abstractmethod
     def breakaway_torque(self) -> float:
-        """Static (breakaway) torque at full normal force [N m]; >= every kinetic torque."""
+        """Static (breakaway) torque at full normal force [N m]; >= the kinetic torque at rest."""
 
     def factor(self, elapsed: float) -> float:
         """Normal-force factor in [0, 1], ``elapsed`` seconds after engagement."""
@@ -144,7 +154,7 @@ class Stribeck(Coulomb):
     def kinetic(self, speed: float) -> float:
         """tau_c + (tau_s - tau_c) exp(-(w / w_s)^2) [N m]."""
         x = speed / self.stribeck_velocity
-        if not x < 30.0:  # exp(-900) is below every float: Coulomb (and no overflow)
+        if not abs(x) < 30.0:  # exp(-900) is below every float: Coulomb (and no overflow)
             return self.sliding_torque
         drop = self.breakaway_torque - self.sliding_torque
         return self.sliding_torque + drop * math.exp(-(x**2))
@@ -152,6 +162,52 @@ class Stribeck(Coulomb):
     def describe(self) -> dict[str, Any]:
         """The law and its figures, for summary.json (SI units, motor side)."""
         return {**super().describe(), "stribeck_velocity": self.stribeck_velocity}
+
+
+@dataclass(frozen=True)
+class Viscous(Coulomb):
+    """Coulomb friction whose kinetic torque grows with the slip speed.
+
+    tau(w) = tau_c (1 + w / w_v) with tau_c the sliding torque and w_v the viscous speed (motor
+    side): the friction coefficient of the brake's friction pair rising linearly with the slip
+    speed, as a lubricated or wet pair's does (Coulomb plus viscous friction, the viscous part
+    in proportion to the normal force, hence to tau_c: brakes of one type share w_v). Its
+    deceleration is hardest at the start of a stop, when the speed is highest; at rest it is
+    the Coulomb torque, and the static torque still bounds what a stuck brake holds.
+
+    Attributes:
+        viscous_velocity: Motor speed at which the kinetic torque is twice tau_c, w_v [rad/s],
+            > 0.
+
+    Raises:
+        BrakeError: A figure out of range.
+    """
+
+    viscous_velocity: float = 1.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        w = self.viscous_velocity
+        if not (w > 0.0) or not math.isfinite(w):
+            raise BrakeError(f"viscous velocity {w} rad/s is not a finite number > 0")
+
+    @property
+    def name(self) -> str:
+        """``viscous``."""
+        return "viscous"
+
+    def kinetic(self, speed: float) -> float:
+        """tau_c (1 + w / w_v) [N m]; past rest (w < 0) tau_c, Coulomb's.
+
+        The continuation past rest stays tau_c rather than the line's (which would fall below
+        tau_c and, for a stiff brake, reverse): it keeps a trial step past the instant of
+        rest dissipative, at the price of a kink in the torque's slope there.
+        """
+        return self.sliding_torque * (1.0 + max(speed, 0.0) / self.viscous_velocity)
+
+    def describe(self) -> dict[str, Any]:
+        """The law and its figures, for summary.json (SI units, motor side)."""
+        return {**super().describe(), "viscous_velocity": self.viscous_velocity}
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,9 @@
 """One smooth piece of a hybrid motion: topology, torques on the free joints, ending events.
 
-The integrated state is y = (q_f, v_f, W_brake, W_drive, P_brake): free positions [rad] and
-rates [rad/s], the work dissipated by sliding brakes and the work done by the drives [J], and
-the angular impulse each brake's friction has delivered to its joint [N m s] (n entries).
+The integrated state is y = (q_f, v_f, W_brake, W_drive, W_short, P_brake): free positions
+[rad] and rates [rad/s], the work dissipated by sliding brakes, the work done by the drives and
+the work dissipated by the motors' short-circuit braking [J], and the angular impulse each
+brake's friction has delivered to its joint [N m s] (n entries).
 """
 
 from __future__ import annotations
@@ -13,13 +14,17 @@ import numpy as np
 import pinocchio as pin
 
 from .brakes import BrakeMachine, BrakeMode, BrakeStateEvent
-from .drives import DriveLaw, DriveOff
+from .drives import DriveLaw, DriveOff, ShortCircuit
 from .dynamics import compute_M, solve_small
 from .holonomic import FrameConstraint, compute_kinematics, stack
 from .integrators import Rhs
 from .robot import Robot
 from .topology import Topology, full_data
 from .transitions import solve_saddle_point
+
+#: The work accumulators after (q_f, v_f) in a phase state: brake friction, drives,
+#: short-circuit braking [J]; the brakes' impulses follow them.
+WORKS = 3
 
 
 class Phase:
@@ -32,6 +37,8 @@ class Phase:
             None without brakes.
         drive: Drive law (:mod:`vtm_pin.drives`); drives off by default.
         drive_on: Per joint, whether its drive acts.
+        dynamic: The motors' short-circuit braking, if any motor brakes.
+        dynamic_on: Per joint, whether its motor brakes (shorted: its drive has dropped out).
         constraints: Active frame constraints.
         baumgarte: Baumgarte gains (alpha, beta) [1/s] of the frame constraints.
         full: Holding torques and accelerations from the full model (CRBA and a dense solve
@@ -49,6 +56,8 @@ class Phase:
         constraints: tuple[FrameConstraint, ...] = (),
         baumgarte: tuple[float, float] = (0.0, 0.0),
         full: bool = False,
+        dynamic: ShortCircuit | None = None,
+        dynamic_on: np.ndarray | None = None,
     ) -> None:
         self.robot = robot
         self.full = full
@@ -62,6 +71,9 @@ class Phase:
         self.drive = (DriveOff() if drive is None else drive).bind(free)
         on = np.zeros(n, dtype=bool) if drive_on is None else np.asarray(drive_on, dtype=bool)
         self._drive_f = on[free] if self.drive.acts else np.zeros(self.k, dtype=bool)
+        shorted = np.zeros(n, dtype=bool) if dynamic_on is None else np.asarray(dynamic_on)
+        self._dynamic_f = shorted[free] & ~self._drive_f if dynamic is not None else shorted[:0]
+        self.dynamic = dynamic.bind(free) if dynamic is not None and self._dynamic_f.any() else None
         self._sliding = (
             [(f, j, brakes.brakes[j]) for f, j in enumerate(free.tolist()) if self.modes[j].sliding]
             if brakes
@@ -73,14 +85,15 @@ class Phase:
         #: No torque acts: y is (q_f, v_f) only and the accumulators stay constant.
         self.constraints = tuple(constraints)
         self.baumgarte = baumgarte
-        self._drives = bool(np.count_nonzero(self._drive_f))
+        self._powered = bool(np.count_nonzero(self._drive_f))
+        self._drives = self._powered or self.dynamic is not None
         self.passive = not self._drives and not self._sliding and not self.constraints
         # passive: the topology itself, which can also write into the integrator's buffers
         self.rhs: Rhs = self.topology if self.passive else self._rhs
         # Per-call constants of the right-hand side: no torque, and where the impulses go.
         self._no_torque = np.zeros(self.k)
         self._no_torque.flags.writeable = False
-        self._impulse_index = 2 * self.k + 2 + free
+        self._impulse_index = 2 * self.k + WORKS + free
 
     @functools.cached_property
     def events(self) -> list[BrakeStateEvent]:
@@ -91,6 +104,21 @@ class Phase:
         return machine.state_events(
             self.topology.free.tolist(), self.topology.locked, self.holding_torque
         )
+
+    def shorted(self) -> tuple[np.ndarray, np.ndarray]:
+        """Short-circuit figures per joint of the full model, motor side.
+
+        Returns:
+            The peak torque where the motor is shorted in this phase (0 elsewhere) [N m], and
+            its peak speed (1 where none) [rad/s].
+        """
+        n = self.robot.nv
+        torque, speed = np.zeros(n), np.ones(n)
+        if self.dynamic is not None:
+            free = self.topology.free[self._dynamic_f]
+            torque[free] = self.dynamic.peak_torque[self._dynamic_f]
+            speed[free] = self.dynamic.peak_speed[self._dynamic_f]
+        return torque, speed
 
     def pack(self, q: np.ndarray, v: np.ndarray, extras: np.ndarray) -> np.ndarray:
         """Y from full (q, v) and the work/impulse accumulators (omitted when passive)."""
@@ -105,20 +133,24 @@ class Phase:
             return np.repeat(extras[None], len(y), axis=0)
         return y[..., 2 * self.k :]
 
-    def torques(self, t: float, q_f: np.ndarray, v_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Drive and brake torques on the free joints [N m]."""
-        tau_drive = self._no_torque
-        if self._drives:
+    def torques(
+        self, t: float, q_f: np.ndarray, v_f: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Drive, short-circuit braking and brake torques on the free joints [N m]."""
+        tau_drive = tau_short = tau_brake = self._no_torque
+        if self._powered:
             topology = self.topology
             tau = self.drive.torques(topology.model, topology.data, t, q_f, v_f)
             tau_drive = np.where(self._drive_f, tau, 0.0)
-        if not self._sliding:
-            return tau_drive, self._no_torque
-        tau_brake = np.zeros(self.k)
-        ratio = self.robot.gear_ratio
-        for f, j, brake in self._sliding:
-            tau_brake[f] = -self._signs[j] * brake.sliding(t - self.engaged[j], v_f[f], ratio[j])
-        return tau_drive, tau_brake
+        if self.dynamic is not None:
+            tau_short = np.where(self._dynamic_f, self.dynamic.joint_torque(v_f), 0.0)
+        if self._sliding:
+            tau_brake = np.zeros(self.k)
+            ratio = self.robot.gear_ratio
+            for f, j, brake in self._sliding:
+                sign = self._signs[j]
+                tau_brake[f] = -sign * brake.sliding(t - self.engaged[j], sign * v_f[f], ratio[j])
+        return tau_drive, tau_short, tau_brake
 
     def _rhs(self, t: float, y: np.ndarray) -> np.ndarray:
         """dy/dt: (v_f, a_f, friction power, drive power, brake torques)."""
@@ -127,16 +159,18 @@ class Phase:
         if k == 0:
             return out
         q_f, v_f = y[:k], y[k : 2 * k]
-        tau_drive, tau_brake = self.torques(t, q_f, v_f)
+        tau_drive, tau_short, tau_brake = self.torques(t, q_f, v_f)
+        tau = tau_drive + tau_short + tau_brake
         if self.constraints:
-            a = self.constrained_acceleration(y, tau_drive + tau_brake)[0]
+            a = self.constrained_acceleration(y, tau)[0]
         else:
             topology = self.topology
-            a = pin.aba(topology.model, topology.data, q_f, v_f, tau_drive + tau_brake)
+            a = pin.aba(topology.model, topology.data, q_f, v_f, tau)
         out[:k] = v_f
         out[k : 2 * k] = a
         out[2 * k] = -float(tau_brake.dot(v_f))
         out[2 * k + 1] = float(tau_drive.dot(v_f))
+        out[2 * k + 2] = -float(tau_short.dot(v_f))
         out[self._impulse_index] = tau_brake
         return out
 
@@ -196,16 +230,14 @@ class Phase:
         a = np.zeros(self.robot.nv)
         if not k:
             return a
-        tau_drive, tau_brake = self.torques(t, y[:k], y[k : 2 * k])
+        tau = sum(self.torques(t, y[:k], y[k : 2 * k]))
         free = self.topology.free
         if self.full:
             M, b = self._mass_and_bias(*(qv or self.topology.merge(y[: 2 * k])))
             M_ff = M.take(self.topology.free_block).reshape(k, k)
-            a[free] = solve_small(M_ff, tau_drive + tau_brake - b[free])
+            a[free] = solve_small(M_ff, tau - b[free])
         else:
-            a[free] = pin.aba(
-                self.topology.model, self.topology.data, y[:k], y[k : 2 * k], tau_drive + tau_brake
-            )
+            a[free] = pin.aba(self.topology.model, self.topology.data, y[:k], y[k : 2 * k], tau)
         return a
 
     def _mass_and_bias(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -47,6 +47,7 @@ def build_summary(
     lost_at_events = float(sum(e.transition.energy_loss for e in result.events))
     brake_work = float(result.brake_work[-1])
     drive_work = float(result.drive_work[-1])
+    short_work = float(result.short_circuit_work[-1])
     mechanical_loss = float(energy.total[0] - energy.total[-1])
     summary: dict[str, Any] = {
         "scenario": scenario.source,
@@ -70,12 +71,15 @@ def build_summary(
             "lost_at_events": lost_at_events,
             "brake_work": brake_work,
             "drive_work": drive_work,
-            "balance_residual": mechanical_loss - (lost_at_events + brake_work - drive_work),
+            "short_circuit_work": short_work,
+            "balance_residual": mechanical_loss
+            - (lost_at_events + brake_work + short_work - drive_work),
         },
         "brakes": [
             {"joint": b.joint, "delay": b.delay, "friction": b.friction.describe()}
             for b in scenario.brakes
         ],
+        "short_circuit": _short_circuit(scenario),
         "brake_events": [_brake_event(e) for e in result.brake_events],
         "constraints": [c.name for c in scenario.constraints],
         "constraint_drift": {
@@ -110,6 +114,14 @@ def build_summary(
             for name, other in compare.items()
         }
     return summary
+
+
+def _short_circuit(scenario: Scenario) -> dict[str, Any]:
+    """The short-circuit braking figures of the motors that have it (motor side), by joint."""
+    from .drives import short_circuit
+
+    law = short_circuit(scenario.robot)
+    return {} if law is None else law.describe(scenario.robot.joints)
 
 
 def _payload(scenario: Scenario) -> dict[str, Any] | None:
@@ -307,11 +319,13 @@ def format_summary(summary: Mapping[str, Any]) -> str:
         label = f"final ({name}) at t = {final['t']:g} s"
         lines.append(f"{label}: q = {_vec(final['q'])} rad, v = {_vec(final['v'])} rad/s")
     energy = summary["energy"]
-    if energy["brake_work"] or energy["drive_work"]:
+    if energy["brake_work"] or energy["drive_work"] or energy["short_circuit_work"]:
         lines.append(
             f"energy: lost at locks {energy['lost_at_events']:.4f} J, brake friction work "
-            f"{energy['brake_work']:.4f} J, drive work {energy['drive_work']:.4f} J; balance "
-            f"residual {energy['balance_residual']:.2e} J"
+            f"{energy['brake_work']:.4f} J, short-circuit braking "
+            f"{energy['short_circuit_work']:.4f} J, drive work {energy['drive_work']:.4f} J; "
+            "balance residual "
+            f"{energy['balance_residual']:.2e} J"
         )
     for name, run in summary.get("compare", {}).items():
         diff = np.abs(run["final_q_difference"])

@@ -143,6 +143,8 @@ class SimulationResult:
         modes: :class:`BrakeMode` code per joint and sample, shape (k, n).
         brake_work: Work dissipated by sliding brakes since t = 0 [J], shape (k,).
         drive_work: Work done by the drives since t = 0 [J], shape (k,).
+        short_circuit_work: Work dissipated by the motors' short-circuit braking since t = 0
+            [J], shape (k,); never decreases.
         brake_impulse: Friction impulse each brake delivered to its joint [N m s], shape (n,).
         holding: Torque each lock exerts to hold its joint [N m], shape (k, n); NaN where the
             joint is free, and everywhere in runs without brakes (not computed).
@@ -166,6 +168,7 @@ class SimulationResult:
     modes: np.ndarray
     brake_work: np.ndarray
     drive_work: np.ndarray
+    short_circuit_work: np.ndarray
     brake_impulse: np.ndarray
     holding: np.ndarray
     drift: np.ndarray

@@ -34,15 +34,30 @@ ROBOTS_DIR = Path(str(resources.files("vtm_pin.robots")))
 
 #: Largest gear ratio [-] and rotor inertia (motor side) [kg m^2] accepted for a drive.
 MAX_GEAR_RATIO, MAX_ROTOR_INERTIA = 1.0e4, 100.0
+#: Largest short-circuit braking torque [N m] and speed of its peak [rad/s], motor side.
+MAX_SHORT_CIRCUIT_TORQUE, MAX_SHORT_CIRCUIT_SPEED = 1.0e6, 1.0e5
 #: Drive data per joint name, as a scenario's ``drives`` and a robot data file give them.
 DRIVES_SCHEMA: dict[str, Any] = {
     "type": "object",
-    "description": "Gear ratio [-] and rotor inertia [kg m^2] per joint name; "
-    "armature = gear_ratio^2 * rotor_inertia. Default: none.",
+    "description": "Gear ratio [-], rotor inertia [kg m^2] and short-circuit braking per joint "
+    "name; armature = gear_ratio^2 * rotor_inertia. Default: none.",
     "additionalProperties": {
         "type": "object",
         "additionalProperties": False,
         "properties": {
+            "short_circuit_torque": number(
+                0.0,
+                MAX_SHORT_CIRCUIT_TORQUE,
+                "Peak torque of the motor's short-circuit (dynamic) braking once its drive drops "
+                "out, motor side [N m], at most 1e6. Default: 0 (none).",
+            ),
+            "short_circuit_speed": number(
+                0.0,
+                MAX_SHORT_CIRCUIT_SPEED,
+                "Motor speed at which the short-circuit braking torque peaks [rad/s], > 0, at "
+                "most 1e5; required with short_circuit_torque.",
+                exclusive_low=True,
+            ),
             "gear_ratio": number(
                 0.0,
                 MAX_GEAR_RATIO,
@@ -93,10 +108,39 @@ class Drive:
     Attributes:
         gear_ratio: Motor angle per joint angle [-] (motor side = ratio x joint side).
         rotor_inertia: Rotor inertia about its axis, motor side [kg m^2].
+        short_circuit_torque: Peak torque of the motor's short-circuit braking, motor side
+            [N m]; 0: the motor does not brake (:class:`~vtm_pin.drives.ShortCircuit`).
+        short_circuit_speed: Motor speed of that peak [rad/s], > 0 with short-circuit braking
+            (0 without).
     """
 
     gear_ratio: float = 1.0
     rotor_inertia: float = 0.0
+    short_circuit_torque: float = 0.0
+    short_circuit_speed: float = 0.0
+
+    @classmethod
+    def from_spec(cls, spec: Mapping[str, Any]) -> Drive:
+        """A drive from its mapping (a scenario's or robot data file's ``drives.<joint>``).
+
+        Raises:
+            ValueError: ``short_circuit_torque`` without ``short_circuit_speed`` or the other
+                way round (the message says which key is missing).
+        """
+        torque = spec.get("short_circuit_torque")
+        speed = spec.get("short_circuit_speed")
+        if (torque is None) != (speed is None):
+            missing = "short_circuit_speed" if speed is None else "short_circuit_torque"
+            raise ValueError(
+                f"{missing}: short_circuit_torque [N m] and short_circuit_speed [rad/s] go "
+                "together (motor side)"
+            )
+        return cls(
+            gear_ratio=float(spec.get("gear_ratio", 1.0)),
+            rotor_inertia=float(spec.get("rotor_inertia", 0.0)),
+            short_circuit_torque=0.0 if torque is None else float(torque),
+            short_circuit_speed=0.0 if speed is None else float(speed),
+        )
 
     @property
     def armature(self) -> float:
@@ -117,6 +161,7 @@ class Robot:
         tool_frame: Frame whose path the stopping report follows (the tool centre point).
         assumptions: Stated assumptions behind the model's figures (from the robot's
             ``<name>.yaml`` beside its URDF), quoted by reports.
+        drives: The drive of every joint that has one (robot data, then the caller's).
         cache: Reduced models and Pinocchio Data built from ``model`` (see
             :mod:`vtm_pin.model_cache`); a new robot, or a copy with another model, starts
             with an empty one. ``model`` must not be changed in place once it is used.
@@ -129,6 +174,7 @@ class Robot:
     gear_ratio: np.ndarray
     tool_frame: str = ""
     assumptions: tuple[str, ...] = ()
+    drives: Mapping[str, Drive] = field(default_factory=dict)
     cache: ModelCache = field(default_factory=ModelCache, init=False, repr=False, compare=False)
 
     @property
@@ -223,6 +269,7 @@ def load_robot(
         gear_ratio=gear_ratio,
         tool_frame=tool_frame,
         assumptions=tuple(sidecar.get("assumptions", ())),
+        drives=all_drives,
     )
 
 
@@ -308,7 +355,10 @@ def _read_sidecar(path: Path, joints: Sequence[str]) -> dict[str, Any]:
                 f"drives.{excerpt(joint)}",
                 f"unknown joint; the joints are: {', '.join(joints)}",
             )
-        drives[joint] = Drive(float(d.get("gear_ratio", 1.0)), float(d.get("rotor_inertia", 0.0)))
+        try:
+            drives[joint] = Drive.from_spec(d)
+        except ValueError as exc:
+            raise RobotDataError(str(path), f"drives.{excerpt(joint)}", str(exc)) from exc
     return {
         "drives": drives,
         "tool_frame": raw.get("tool_frame"),

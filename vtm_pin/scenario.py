@@ -27,7 +27,7 @@ from .exceptions import (
     VtmError,
     excerpt,
 )
-from .friction import Coulomb, FrictionLaw, IdealLock, Stribeck
+from .friction import Coulomb, FrictionLaw, IdealLock, Stribeck, Viscous
 from .holonomic import FrameConstraint
 from .inputs import check_schema, number, read_yaml
 from .integrators import DEFAULT_MAX_STEPS, DOP853, FIXED_STEP, INTEGRATORS, Integrator
@@ -47,6 +47,7 @@ MAX_POSITION = 1.0e3  # [rad or m] joint positions
 MAX_RATE = 1.0e3  # [rad/s or m/s] joint rates
 MAX_TORQUE = 1.0e6  # [N m] drive torque limits and brake torques
 MAX_GAIN = 1.0e4  # [1/s] velocity feedback gain of a category-1 stop
+MAX_VISCOUS_VELOCITY = 1.0e5  # [rad/s] motor side: above it a viscous brake is Coulomb's
 #: [1/s] Baumgarte gains: a correction faster than 1 ms is faster than any event of a stop,
 #: and above it the term beta^2 h amplifies round-off so that a tight dop853 run stalls.
 MAX_BAUMGARTE = 1.0e3
@@ -340,15 +341,23 @@ SCHEMA: dict[str, Any] = {
                         exclusive_low=True,
                     ),
                     "friction": {
-                        "enum": ["coulomb", "stribeck"],
-                        "description": "Friction law: coulomb (constant sliding torque) or "
+                        "enum": ["coulomb", "stribeck", "viscous"],
+                        "description": "Friction law: coulomb (constant sliding torque), "
                         "stribeck (falls from the static to the sliding torque over "
-                        "stribeck_velocity). Default: coulomb.",
+                        "stribeck_velocity) or viscous (grows with the slip speed: "
+                        "sliding_torque (1 + w / viscous_velocity)). Default: coulomb.",
                     },
                     "stribeck_velocity": number(
                         0.0,
                         MAX_RATE,
                         "Stribeck law: motor speed of the drop [rad/s], > 0, at most 1e3.",
+                        exclusive_low=True,
+                    ),
+                    "viscous_velocity": number(
+                        0.0,
+                        MAX_VISCOUS_VELOCITY,
+                        "Viscous law: motor speed at which the kinetic torque is twice "
+                        "sliding_torque [rad/s], > 0, at most 1e5.",
                         exclusive_low=True,
                     ),
                 },
@@ -580,13 +589,7 @@ def build_scenario(
     raw = merge_includes(raw, source, base_dir)
     duration = float(raw["duration"])
 
-    drives = {
-        joint: Drive(
-            gear_ratio=float(d.get("gear_ratio", 1.0)),
-            rotor_inertia=float(d.get("rotor_inertia", 0.0)),
-        )
-        for joint, d in raw.get("drives", {}).items()
-    }
+    drives = _drives(raw.get("drives", {}), source)
     try:
         robot = loader(raw["robot"], drives=drives, base_dir=base_dir)
     except JointNotFound as exc:
@@ -662,6 +665,17 @@ def build_scenario(
         payload=payload,
         test_state=test_state,
     )
+
+
+def _drives(raw: Mapping[str, Any], source: str) -> dict[str, Drive]:
+    """The drives of a scenario's ``drives`` mapping (schema checked)."""
+    drives = {}
+    for joint, spec in raw.items():
+        try:
+            drives[joint] = Drive.from_spec(spec)
+        except ValueError as exc:
+            raise ScenarioError(source, f"drives.{excerpt(joint)}", str(exc)) from exc
+    return drives
 
 
 def _payload(raw: Mapping[str, Any], tool_frame: str, source: str) -> Payload:
@@ -883,7 +897,13 @@ def _brakes(raw: Mapping[str, Any], source: str) -> tuple[Brake, ...]:
 def _friction(spec: Mapping[str, Any], source: str, key: str) -> FrictionLaw:
     """The friction law of one brake's mapping (motor side figures)."""
     law = spec.get("friction", "coulomb")
-    figures = {"sliding_torque", "static_torque", "friction", "stribeck_velocity"} & set(spec)
+    figures = {
+        "sliding_torque",
+        "static_torque",
+        "friction",
+        "stribeck_velocity",
+        "viscous_velocity",
+    } & set(spec)
     if spec.get("ideal", False):
         if figures:
             raise ScenarioError(
@@ -894,15 +914,19 @@ def _friction(spec: Mapping[str, Any], source: str, key: str) -> FrictionLaw:
         return IdealLock()
     if "sliding_torque" not in spec:
         raise ScenarioError(source, key, "needs sliding_torque [N m] (or ideal: true)")
-    if ("stribeck_velocity" in spec) != (law == "stribeck"):
-        raise ScenarioError(
-            source, key, "stribeck_velocity [rad/s] goes with friction: stribeck, and only there"
-        )
+    for figure, owner in (("stribeck_velocity", "stribeck"), ("viscous_velocity", "viscous")):
+        if (figure in spec) != (law == owner):
+            raise ScenarioError(
+                source, key, f"{figure} [rad/s] goes with friction: {owner}, and only there"
+            )
     sliding, static = float(spec["sliding_torque"]), spec.get("static_torque")
     ramp = float(spec.get("ramp", 0.0))
     if law == "stribeck":
         velocity = float(spec["stribeck_velocity"])
         return Stribeck(sliding, static, ramp=ramp, stribeck_velocity=velocity)
+    if law == "viscous":
+        velocity = float(spec["viscous_velocity"])
+        return Viscous(sliding, static, ramp=ramp, viscous_velocity=velocity)
     return Coulomb(sliding, static, ramp=ramp)
 
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from .brakes import Brake, BrakeMachine
 from .constraints import check_independent, lock_jacobian
-from .drives import DriveHold, DriveLaw, DriveOff, DriveRamp
+from .drives import DriveHold, DriveLaw, DriveOff, DriveRamp, short_circuit
 from .dynamics import compute_energy, compute_M
 from .exceptions import SimulationError
 from .holonomic import (
@@ -32,7 +32,7 @@ from .holonomic import (
 )
 from .integrators import Integrator, Rhs, Segment
 from .integrators.base import writer
-from .phase import Phase
+from .phase import WORKS, Phase
 from .problem import LockEvent, Problem, check_transition
 from .results import (
     EventRecord,
@@ -68,13 +68,16 @@ class _Hybrid:
         self.reduced = reduced
         n = robot.nv
         self.q, self.v = q, v
-        self.extras = np.zeros(2 + n)
+        self.extras = np.zeros(WORKS + n)
         self.locked: list[int] = []
         self.brakes = {robot.joint_index(b.joint): b for b in brakes}
         self.machine = BrakeMachine(self.brakes, robot.joints, robot.gear_ratio)
         self.stop = stop
         self.drive: DriveLaw = DriveOff() if stop is None else DriveHold()
         self.drive_on = np.full(n, stop is not None)
+        #: The motors' short-circuit braking, and per joint whether its motor is shorted now.
+        self.dynamic = short_circuit(robot) if stop is not None else None
+        self.dynamic_on = np.zeros(n, dtype=bool)
         self.rule = TRANSITIONS[rule]
         self.rule_name = rule
         self.frames: list[FrameConstraint] = []
@@ -94,6 +97,8 @@ class _Hybrid:
             tuple(self.frames),
             self.baumgarte,
             full=not self.reduced,
+            dynamic=self.dynamic,
+            dynamic_on=self.dynamic_on,
         )
 
     def lock(
@@ -175,9 +180,15 @@ class _Hybrid:
         M = compute_M(model, self.data, self.q)
         return self.rule(M, J1, J2, self.v)
 
+    def drop_out(self, joints: np.ndarray | list[int] | slice) -> None:
+        """The drives of ``joints`` drop out: their motors, if they brake, are shorted."""
+        self.drive_on[joints] = False
+        if self.dynamic is not None:
+            self.dynamic_on[joints] = self.dynamic.present[joints]
+
     def engage(self, t: float, i: int, ideal_locks: list[int]) -> None:
-        """Brake ``i`` engages: its drive goes off; an ideal brake's joint locks now."""
-        self.drive_on[i] = False
+        """Brake ``i`` engages: its drive drops out; an ideal brake's joint locks now."""
+        self.drop_out([i])
         if self.machine.engage(t, i, float(self.v[i]), i in self.locked):
             ideal_locks.append(i)
 
@@ -433,11 +444,12 @@ def _apply_time_events(h: _Hybrid, queue: list[TimeEvent], t: float) -> bool:
             case TimeKind.SIGNAL, _:
                 assert h.stop is not None
                 if h.stop.category == 0:
-                    h.drive, h.drive_on[:] = DriveOff(), False
+                    h.drive = DriveOff()
+                    h.drop_out(slice(None))
                 else:
                     h.drive = DriveRamp(h.stop, h.v.copy())
             case TimeKind.BRAKE_SIGNAL, _:
-                h.drive_on[[i for i in range(h.robot.nv) if i not in h.brakes]] = False
+                h.drop_out([i for i in range(h.robot.nv) if i not in h.brakes])
             case TimeKind.ENGAGE, int() as joint:
                 h.engage(t, joint, ideal)
     if ideal or frames:
@@ -528,7 +540,8 @@ class _Trace:
             modes=rows["modes"],
             brake_work=work[:, 0],
             drive_work=work[:, 1],
-            brake_impulse=work[-1, 2:].copy(),
+            short_circuit_work=work[:, 2],
+            brake_impulse=work[-1, WORKS:].copy(),
             holding=rows["hold"],
             drift=rows["drift"],
             events=tuple(h.events),
@@ -582,15 +595,14 @@ def _check_energy(
     for row in y[rows]:
         q, v = phase.topology.merge(row[: 2 * phase.k])
         energies.append(compute_energy(h.robot.model, h.data, q, v))
-        works.append(phase.unpack_extras(row, h.extras)[:2])
+        works.append(phase.unpack_extras(row, h.extras)[:WORKS])
     (t0, v0), (t1, v1) = energies[0], energies[-1]
-    brake = works[-1][0] - works[0][0]
-    drive = works[-1][1] - works[0][1]
-    residual = (t0 + v0) - (t1 + v1) - (brake - drive)
+    brake, drive, short = works[-1] - works[0]
+    residual = (t0 + v0) - (t1 + v1) - (brake + short - drive)
     # Energy moved: the largest kinetic energy and potential change seen, and the work done.
     kinetic = max(e[0] for e in energies)
     potential = max(e[1] for e in energies) - min(e[1] for e in energies)
-    moved = max(kinetic, potential, abs(brake), abs(drive))
+    moved = max(kinetic, potential, abs(brake), abs(drive), abs(short))
     # Round-off of T + V itself (|V| may be large while little moves) is no blow-up.
     roundoff = ENERGY_ROUNDOFF * max(1.0, abs(t0) + abs(v0))
     if abs(residual) > max(ENERGY_TOLERANCE * moved, roundoff):
