@@ -84,7 +84,9 @@ def _reference_model(arm: Robot, link: str, payload: Payload) -> pin.Model:
   </joint>
 """
     end = urdf.rindex("</robot>")
-    return pin.buildModelFromXML(urdf[:end] + body + urdf[end:])
+    model = pin.buildModelFromXML(urdf[:end] + body + urdf[end:])
+    model.armature = arm.model.armature.copy()  # the robot data's rotor inertias (not in URDFs)
+    return model
 
 
 def _random_states(

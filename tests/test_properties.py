@@ -847,7 +847,8 @@ def test_property_many(name):
 # ---------------------------------------------------------------------------------------------
 # Regression: issue 10, section 1 (UR10 category-1 stop, resting wrists run away)
 
-#: Motor-side brake torques (sliding, static) [N m] of scenarios/ur10_estop_cat0.yaml.
+#: Motor-side brake torques (sliding, static) [N m] that scenarios/ur10_estop_cat0.yaml had when
+#: issue 10 was found (weak wrist brakes; the scenario now takes the UR10's robot data brakes).
 UR10_BRAKES = ((0.4, 0.6), (2.0, 2.5), (0.6, 0.8), (0.05, 0.08), (0.05, 0.08), (0.05, 0.08))
 UR10_Q0 = np.array([0.0, -1.2, 1.4, -1.2, -1.57, 0.0])  # [rad], from that scenario
 
@@ -903,18 +904,6 @@ def test_ur10_category_one_stop_one_joint_moving(moving):
     check_stop_regression(ur10_category_one(v0), INTEGRATOR)
 
 
-def test_ur10_scenario_brakes_match_the_regression():
-    """The regression uses the brake figures and start pose of ur10_estop_cat0.yaml."""
-    import yaml
-
-    raw = yaml.safe_load((SCENARIOS / "ur10_estop_cat0.yaml").read_text())
-    np.testing.assert_array_equal(raw["initial"]["q"], UR10_Q0)
-    figures = [(b["sliding_torque"], b["static_torque"]) for b in raw["brakes"].values()]
-    assert tuple(figures) == UR10_BRAKES
-    drives = {j: Drive(d["gear_ratio"], d["rotor_inertia"]) for j, d in raw["drives"].items()}
-    assert drives == DRIVES["ur10"]
-
-
 @pytest.mark.slow
 def test_ur10_category_one_stop_through_the_cli(tmp_path, capsys):
     """Issue 10 as a user ran it: no 'nan' printed, no NaN in summary.json, brakes hold."""
@@ -924,6 +913,10 @@ def test_ur10_category_one_stop_through_the_cli(tmp_path, capsys):
 
     raw = yaml.safe_load((SCENARIOS / "ur10_estop_cat0.yaml").read_text())
     raw["initial"]["v"] = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
+    raw["brakes"] = {  # the weak brakes of issue 10
+        joint: {"delay": 0.05, "sliding_torque": sliding, "static_torque": static}
+        for joint, (sliding, static) in zip(_UR_JOINTS, UR10_BRAKES, strict=True)
+    }
     raw["stop"] = {
         "t": 0.0,
         "category": 1,

@@ -195,7 +195,7 @@ def test_massless_leaf_moves_when_its_joint_has_a_rotor(tmp_path):
         ("drives:\n  joint1: {gear_ratio: -5}\n", r"'drives.joint1.gear_ratio': -5 must be > 0"),
         ("drives:\n  joint2: {rotor_inertia: -1}\n", r"'drives.joint2.rotor_inertia': -1 must be"),
         ("drives:\n  elbow: {gear_ratio: 2}\n", r"'drives.elbow': unknown joint; the joints are"),
-        ("drive: {}\n", r"'drive': unknown key; allowed keys here: assumptions, drives"),
+        ("drive: {}\n", r"'drive': unknown key; allowed keys here: assumptions, brakes, drives"),
         ("drives: [\n  joint1: {gear_ratio: 2}\n", r"not valid YAML at line 3: expected"),
     ],
 )

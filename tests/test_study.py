@@ -131,11 +131,11 @@ def test_resolve_sets_named_axes_and_key_paths_without_touching_the_base(tmp_pat
     }
     assert raw["payload"]["mass"] == 2.5 and raw["payload"]["com"] == base["payload"]["com"]
     assert raw["stop"]["category"] == 1 and raw["stop"]["t"] == 0.2
-    assert "elbow_joint" not in raw["brakes"]
+    assert raw["brakes"]["elbow_joint"] is None  # no brake, not even the robot data's
     lift, base_lift = raw["brakes"]["shoulder_lift_joint"], base["brakes"]["shoulder_lift_joint"]
     assert lift["sliding_torque"] == 0.5 * base_lift["sliding_torque"]
     assert lift["static_torque"] == 0.5 * base_lift["static_torque"]
-    assert {b["delay"] for b in raw["brakes"].values()} == {0.1}
+    assert {b["delay"] for b in raw["brakes"].values() if b is not None} == {0.1}
     assert json.loads(json.dumps(study.base)) == base  # the base is not modified
     assert set(NAMED_AXES) >= {"joint", "speed", "payload", "extension", "category"}
 
@@ -177,15 +177,22 @@ def test_a_study_writes_its_table_summary_and_report(small_run: tuple[Path, pd.D
     for _, rows in ok.groupby("joint"):
         rows = rows.sort_values("speed")
         assert rows["stop_angle"].is_monotonic_increasing
-        assert rows["stop_time"].is_monotonic_increasing
+        assert rows["robot_stop_time"].is_monotonic_increasing
     assert np.all(ok["tcp_path"] >= ok["tcp_distance"] - 1e-12)  # a path is never shorter
     assert np.allclose(
         ok["test_speed"], ok["speed"] * np.where(ok["joint"] == "elbow_joint", 3.15, 2.16)
     )
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["counts"] == {"cases": 6, "ok": 4, "not_stopped": 0, "error": 2}
+    assert summary["counts"] == {
+        "cases": 6,
+        "ok": 4,
+        "not_stopped": 0,
+        "error": 2,
+        "cannot_hold": 0,
+        "flagged": 0,
+    }
     assert summary["study"]["mode"] == "grid" and "pin" in summary["versions"]
-    assert any("Drive figures assumed" in line for line in summary["assumptions"])
+    assert any("ASSUMED drives" in line for line in summary["assumptions"])  # robot data
 
 
 def test_a_failed_case_is_recorded_with_its_message(small_run: tuple[Path, pd.DataFrame]) -> None:
@@ -194,7 +201,7 @@ def test_a_failed_case_is_recorded_with_its_message(small_run: tuple[Path, pd.Da
     assert len(failed) == 2
     for status in failed["status"]:
         assert status.startswith("error: ") and "annex_b.joint" in status and "\n" not in status
-    assert failed["stop_time"].isna().all()
+    assert failed["robot_stop_time"].isna().all()
 
 
 def test_a_finished_study_run_again_computes_nothing(
@@ -359,8 +366,7 @@ def test_a_changed_fragment_changes_the_fingerprint(tmp_path: Path) -> None:
     fragment = tmp_path / "brakes.yaml"
     fragment.write_text("brakes:\n  elbow_joint: {sliding_torque: 1.3}\n")
     base = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
-    base["include"] = ["brakes.yaml"]
-    del base["brakes"]["elbow_joint"]  # the fragment's elbow brake is used
+    base["include"] = ["brakes.yaml"]  # the fragment's elbow brake replaces the robot data's
     (tmp_path / "base.yaml").write_text(yaml.safe_dump(base))
     study_file = tmp_path / "s.yaml"
     study_file.write_text("scenario: base.yaml\nvary: {speed: [1.0]}\n")

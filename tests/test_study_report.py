@@ -75,9 +75,9 @@ def braking(joint: str, speed: float, payload: float, extension: float) -> dict[
     deceleration = torque / inertia  # [rad/s^2]
     angle = v * BRAKE_DELAY + v**2 / (2.0 * deceleration)
     return {
-        "stop_time": BRAKE_DELAY + v / deceleration,
+        "robot_stop_time": BRAKE_DELAY + v / deceleration,
         "stop_angle": angle,
-        "tcp_distance": 2.0 * radius * np.sin(angle / 2.0),  # chord of the arc
+        "tcp_max_displacement": 2.0 * radius * np.sin(angle / 2.0),  # chord of the arc
         "tcp_path": radius * angle,
         "peak_tcp_speed": v * radius,
     }
@@ -89,7 +89,7 @@ def case_row(case: str, axes: dict[str, object]) -> dict[str, object]:
     result = braking(joint, *(float(axes[k]) for k in ("speed", "payload", "extension")))
     row: dict[str, object] = {"case": case, **axes, "status": "ok", **result}
     for other in JOINTS:
-        row[f"stop_time.{other}"] = result["stop_time"] if other == joint else 0.0
+        row[f"stop_time.{other}"] = result["robot_stop_time"] if other == joint else 0.0
         row[f"stop_angle.{other}"] = result["stop_angle"] if other == joint else 0.0
     row["wall_time"] = 0.25
     return row
@@ -104,11 +104,17 @@ def grid_table() -> pd.DataFrame:
         for k, (j, p, e, s) in enumerate(product)
     ]
     table = pd.DataFrame(rows).set_index("case", drop=False)
-    results = ["stop_time", "stop_angle", "tcp_distance", "tcp_path", "peak_tcp_speed"]
+    results = [
+        "robot_stop_time",
+        "stop_angle",
+        "tcp_max_displacement",
+        "tcp_path",
+        "peak_tcp_speed",
+    ]
     table.loc[ERROR_CASE, "status"] = ERROR_STATUS
     table.loc[ERROR_CASE, results] = np.nan
     table.loc[NOT_STOPPED_CASE, "status"] = "not_stopped"
-    table.loc[NOT_STOPPED_CASE, "stop_time"] = np.nan  # angle and distance so far stay
+    table.loc[NOT_STOPPED_CASE, "robot_stop_time"] = np.nan  # angle and distance so far stay
     return table.sample(frac=1.0, random_state=3).reset_index(drop=True)
 
 
@@ -126,8 +132,8 @@ def sampled_table(n: int = 240, seed: int = 7) -> pd.DataFrame:
         }
         rows.append(case_row(f"s{k:03d}", axes))
     table = pd.DataFrame(rows)
-    table.loc[3, ["status", "stop_time"]] = ["not_stopped", np.nan]
-    table.loc[4, ["status", "stop_time", "stop_angle", "tcp_distance"]] = [
+    table.loc[3, ["status", "robot_stop_time"]] = ["not_stopped", np.nan]
+    table.loc[4, ["status", "robot_stop_time", "stop_angle", "tcp_max_displacement"]] = [
         "error: no contact",
         np.nan,
         np.nan,
@@ -192,10 +198,10 @@ def test_annex_b_table_rows_order_columns_and_units(grid):
         "payload [kg]",
         "extension [%]",
         "speed [%]",
-        "stop_time [s]",
+        "robot_stop_time [s]",
         "stop_angle [rad]",
         "stop_angle [deg]",
-        "tcp_distance [m]",
+        "tcp_max_displacement [m]",
         "status",
         "case",
     ]
@@ -212,16 +218,21 @@ def test_annex_b_table_rows_order_columns_and_units(grid):
     np.testing.assert_array_equal(out["payload [kg]"], source["payload"])
     ok = (source["status"] == "ok").to_numpy()
     for label, column in [
-        ("stop_time [s]", "stop_time"),
+        ("robot_stop_time [s]", "robot_stop_time"),
         ("stop_angle [rad]", "stop_angle"),
-        ("tcp_distance [m]", "tcp_distance"),
+        ("tcp_max_displacement [m]", "tcp_max_displacement"),
     ]:
         np.testing.assert_allclose(out[label][ok], source[column][ok], rtol=RTOL)
     np.testing.assert_allclose(
         out["stop_angle [deg]"][ok], np.degrees(source["stop_angle"][ok]), rtol=RTOL
     )
     failed = out.set_index("case").loc[[ERROR_CASE, NOT_STOPPED_CASE]]
-    results = ["stop_time [s]", "stop_angle [rad]", "stop_angle [deg]", "tcp_distance [m]"]
+    results = [
+        "robot_stop_time [s]",
+        "stop_angle [rad]",
+        "stop_angle [deg]",
+        "tcp_max_displacement [m]",
+    ]
     assert failed[results].isna().all().all()  # not-stopped angle and distance hidden too
     assert list(failed["status"]) == [ERROR_STATUS, "not_stopped"]
 
@@ -262,7 +273,11 @@ def test_distribution_table_matches_numpy(sampled):
         assert values["ok"] == len(ok)
         assert values["not_stopped"] == (group["status"] == "not_stopped").sum()
         assert values["error"] == group["status"].str.startswith("error").sum()
-        for name, unit in [("stop_time", "s"), ("stop_angle", "rad"), ("tcp_distance", "m")]:
+        for name, unit in [
+            ("robot_stop_time", "s"),
+            ("stop_angle", "rad"),
+            ("tcp_max_displacement", "m"),
+        ]:
             v = np.abs(ok[name].to_numpy(float))
             np.testing.assert_allclose(values[f"{name} median [{unit}]"], np.median(v), rtol=RTOL)
             np.testing.assert_allclose(
@@ -288,7 +303,7 @@ def test_stopping_graphs_panels_curves_and_failed_cases(grid, grid_figures):
             lines = ax.get_lines()
             assert [line.get_label() for line in lines] == [f"payload {p:g} kg" for p in PAYLOADS]
             extension = EXTENSIONS[k % len(EXTENSIONS)]
-            column = "stop_angle" if k < len(EXTENSIONS) else "stop_time"
+            column = "stop_angle" if k < len(EXTENSIONS) else "robot_stop_time"
             for line, payload in zip(lines, PAYLOADS, strict=True):
                 rows = grid[
                     (grid["joint"] == joint)
@@ -353,7 +368,9 @@ def test_report_html_content_escaping_and_self_contained(grid, report):
     for assumption in ASSUMPTIONS:
         assert f"<li>{html.escape(assumption)}</li>" in page
     assert "Brake torque < rated" not in page  # the raw '<' never reaches the page
-    assert "T — stopping time" in page and "S = K·T + C" in page
+    assert "T_robot — the robot's own stopping time" in html.unescape(page)
+    assert "S = K·T + D_DS + Z" in page and "T = t_detection + t_response + t_latency" in page
+    assert "T_robot alone is NOT T" in page  # the summary gives no safeguard times
     assert "S_s — stopping distance" in page and "ISO/TS 15066" in page
     annex = annex_b_table(grid)
     rows = table_rows(page, "annex-b")

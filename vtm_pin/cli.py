@@ -41,7 +41,7 @@ from .exceptions import (
 )
 from .integrators import INTEGRATORS
 from .pipeline import Progress, check_output_folder, find_scenario, run, write_outputs
-from .report import format_stopping, format_summary, integrator_settings
+from .report import format_figures, format_stopping, format_summary, integrator_settings
 from .robot import list_example_robots, list_local_robots, load_robot
 from .scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
 from .stopping_table import read_stopping_table
@@ -397,6 +397,9 @@ def _run(args: argparse.Namespace) -> int:
         for name, report in output.stopping.items():
             print()
             print(format_stopping(name, report))
+        if output.figures is not None:
+            print()
+            print(format_figures(output.figures))
         print(f"\nwrote {out}/: {', '.join(written)}")
     return EXIT_OK
 

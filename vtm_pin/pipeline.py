@@ -12,13 +12,15 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .analysis import EnergyMomentum, compute_energy_momentum
-from .exceptions import OutputError, ScenarioError
+from .exceptions import OutputError, ScenarioError, VtmWarning
+from .figures import StopFigures, stop_figures
 from .inputs import find_shipped
 from .report import build_summary, write_trajectory
 from .results import SimulationResult
@@ -46,6 +48,8 @@ class RunOutput:
         energies: Energies and momenta at every sample, per rule.
         stopping: Stopping report per rule; empty if the scenario has no stop.
         summary: The JSON-ready summary of ``summary.json`` (keys documented in the README).
+        figures: The main run's signed figures and flags (:mod:`vtm_pin.figures`); None
+            without a stop.
     """
 
     scenario: Scenario
@@ -53,6 +57,7 @@ class RunOutput:
     energies: Mapping[str, EnergyMomentum]
     stopping: Mapping[str, StoppingReport]
     summary: Mapping[str, Any]
+    figures: StopFigures | None = None
 
     @property
     def rule(self) -> str:
@@ -101,6 +106,9 @@ def run(
             dropped); they appear under ``compare`` in the summary.
         progress: Called with the rule and the simulated time [s] as each run advances.
 
+    Each flag of the main run (:mod:`vtm_pin.flags`: a brake that cannot hold the load, a
+    payload above its rating, ...) is also issued as a :class:`~vtm_pin.VtmWarning`.
+
     Returns:
         The results, energies, stopping reports (for a scenario with a stop) and summary.
 
@@ -121,8 +129,11 @@ def run(
             for rule, r in results.items()
         }
     others = {rule: results[rule] for rule in rules[1:]}
-    summary = build_summary(scenario, results[main], energies[main], others, stopping)
-    return RunOutput(scenario, results, energies, stopping, summary)
+    figures = stop_figures(scenario, results[main], stopping[main]) if stopping else None
+    for flag in figures.flags if figures is not None else ():
+        warnings.warn(flag.message, VtmWarning, stacklevel=2)
+    summary = build_summary(scenario, results[main], energies[main], others, stopping, figures)
+    return RunOutput(scenario, results, energies, stopping, summary, figures)
 
 
 def _simulate(scenario: Scenario, rule: str, progress: Progress | None) -> SimulationResult:

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from .analysis import EnergyMomentum
+from .figures import DEFINITIONS, METRICS, StopFigures, describe_flags
 from .integrators import Integrator
 from .results import BrakeEvent, SimulationResult
 from .scenario import Scenario
@@ -34,6 +35,7 @@ def build_summary(
     energy: EnergyMomentum,
     compare: Mapping[str, SimulationResult] | None = None,
     stopping: Mapping[str, StoppingReport] | None = None,
+    figures: StopFigures | None = None,
 ) -> dict[str, Any]:
     """Summary of a run as plain JSON-ready data (keys documented in the README).
 
@@ -43,6 +45,7 @@ def build_summary(
         energy: Energies and momenta of ``result``.
         compare: Runs of the same scenario with other transition rules, by rule name.
         stopping: Stopping reports by rule name (main run and compared runs), for stops.
+        figures: The main run's signed figures, flags and stopping chain, for stops.
     """
     lost_at_events = float(sum(e.transition.energy_loss for e in result.events))
     brake_work = float(result.brake_work[-1])
@@ -99,6 +102,15 @@ def build_summary(
     }
     if stopping and result.transition in stopping:
         summary["stopping"] = _stopping(stopping[result.transition], scenario)
+    if figures is not None:
+        summary["figures"] = {
+            "values": dict(figures.metrics),
+            "units": {**METRICS, "stop_time.<joint>": "s", "stop_angle.<joint>": "rad"},
+            "definitions": DEFINITIONS,
+        }
+        summary["holds"] = figures.holds
+        summary["flags"] = describe_flags(figures.flags)
+        summary["stopping_chain"] = dict(figures.chain)
     if compare:
         summary["compare"] = {
             name: {
@@ -161,10 +173,12 @@ def _brake_event(event: BrakeEvent) -> dict[str, Any]:
 
 #: How the stopping report's times are defined (written into summary.json and the README).
 STOP_TIME_DEFINITION = (
-    "stop_time: time from the stop signal until the joint's speed falls below rest_speed "
-    "for good (ISO 13855's T); null if the joint still moves at the end of the run. "
-    "latch_time: time from the signal until the joint's brake sticks or locks for good; in a "
-    "category-1 stop the drives end the motion before the brakes latch."
+    "stop_time: time from the stop signal reaching the robot until the joint's speed falls "
+    "below rest_speed for good (the robot's own stopping time, part of but not ISO 13855's "
+    "overall T, which adds detection, response and latency: see stopping_chain); null if the "
+    "joint still moves at the end of the run. latch_time: time from the signal until the "
+    "joint's brake sticks or locks for good; in a category-1 stop the drives end the motion "
+    "before the brakes latch."
 )
 
 
@@ -240,6 +254,55 @@ def format_stopping(name: str, report: StoppingReport) -> str:
         f"{report.tcp_peak_surge:.4f} m/s"
     )
     return "\n".join(lines)
+
+
+def format_figures(figures: StopFigures) -> str:
+    """The signed figures, the stopping chain with its formulas, and the flags (CLI lines)."""
+    m = figures.metrics
+    chain = figures.chain
+    lines = [
+        f"signed figures: T_robot {_opt(m['robot_stop_time'], 's')} (the robot's own stop, "
+        f"from the signal reaching it; NOT ISO 13855's T); tested joint "
+        f"{_opt(m['stop_angle'], 'rad')} in {_opt(m['test_stop_time'], 's')}; S_s "
+        f"{_opt(m['tcp_max_displacement'], 'm')} (the tool's largest displacement); tool drop "
+        f"{_opt(m['tool_drop'], 'm')}"
+    ]
+    guard = chain.get("safeguard")
+    if guard is None:
+        lines.append("stopping chain: no safeguard given: T, S and S_p are not computed")
+    else:
+        lines.append(
+            f"stopping chain: T = t_detection + t_response + t_latency + T_robot = "
+            f"{guard['detection_time']:g} + {guard['response_time']:g} + {guard['latency']:g} + "
+            f"{_opt(m['robot_stop_time'])} = {_opt(chain['T'], 's')}"
+        )
+    iso = chain.get("iso13855")
+    if iso is not None:
+        lines.append(
+            f"ISO 13855:2024: S = K T + D_DS + Z = {iso['approach_speed']:g} x "
+            f"{_opt(chain['T'])} + {iso['intrusion_distance']:g} + {iso['supplement']:g} "
+            f"= {_opt(iso['S'], 'm')}"
+        )
+    ssm = chain.get("iso_ts_15066")
+    if ssm is not None and ssm["terms"] is not None:
+        terms = ssm["terms"]
+        lines.append(
+            "ISO/TS 15066: S_p = S_h + S_r + S_s + C + Z_d + Z_r = "
+            + " + ".join(_opt(terms[k]) for k in ("S_h", "S_r", "S_s", "C", "Z_d", "Z_r"))
+            + f" = {_opt(terms['S_p'], 'm')} (v_h {ssm['human_speed']:g} m/s, T_r "
+            f"{ssm['T_r']:g} s, v_r {ssm['v_r']:.3g} m/s)"
+        )
+    if not figures.flags:
+        lines.append("flags: none (every brake holds the load; no other joint slips)")
+    lines += [f"FLAG {flag.kind}: {flag.message}" for flag in figures.flags]
+    return "\n".join(lines)
+
+
+def _opt(x: float | None, unit: str = "") -> str:
+    """A figure with its unit, or ``-`` (not computed)."""
+    if x is None:
+        return "-"
+    return f"{x:.4g} {unit}" if unit else f"{x:.4g}"
 
 
 def _fmt(x: float, spec: str) -> str:

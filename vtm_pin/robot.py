@@ -25,7 +25,16 @@ from .exceptions import (
     UnsupportedJoint,
     excerpt,
 )
-from .inputs import check_schema, number, read_yaml
+from .inputs import (
+    MAX_MASS,
+    MAX_RATE,
+    MAX_TIME,
+    MAX_TORQUE,
+    MAX_VISCOUS_VELOCITY,
+    check_schema,
+    number,
+    read_yaml,
+)
 from .model_cache import ModelCache
 
 #: Folder of the URDF models shipped with the project: ``robots/`` at the top of the source
@@ -72,12 +81,67 @@ DRIVES_SCHEMA: dict[str, Any] = {
         },
     },
 }
-#: Schema of a robot data file, ``<name>.yaml`` beside ``<name>.urdf``.
+#: One joint's brake, as a scenario's ``brakes.<joint>`` and a robot data file give it (motor
+#: side torques and speeds, times in s).
+BRAKE_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "additionalProperties": False,
+    "properties": {
+        "ideal": {
+            "type": "boolean",
+            "description": "Infinite torque: lock at engagement. Default: false.",
+        },
+        "delay": number(0.0, MAX_TIME, "Engagement delay [s], >= 0."),
+        "ramp": number(0.0, MAX_TIME, "Normal-force rise time [s]."),
+        "sliding_torque": number(
+            0.0,
+            MAX_TORQUE,
+            "Kinetic torque, motor side [N m], > 0 and at most 1e6.",
+            exclusive_low=True,
+        ),
+        "static_torque": number(
+            0.0,
+            MAX_TORQUE,
+            "Holding torque, motor side [N m] >= sliding, at most 1e6.",
+            exclusive_low=True,
+        ),
+        "friction": {
+            "enum": ["coulomb", "stribeck", "viscous"],
+            "description": "Friction law: coulomb (constant sliding torque), stribeck (falls "
+            "from the static to the sliding torque over stribeck_velocity) or viscous (grows "
+            "with the slip speed: sliding_torque (1 + w / viscous_velocity)). Default: coulomb.",
+        },
+        "stribeck_velocity": number(
+            0.0,
+            MAX_RATE,
+            "Stribeck law: motor speed of the drop [rad/s], > 0, at most 1e3.",
+            exclusive_low=True,
+        ),
+        "viscous_velocity": number(
+            0.0,
+            MAX_VISCOUS_VELOCITY,
+            "Viscous law: motor speed at which the kinetic torque is twice sliding_torque "
+            "[rad/s], > 0, at most 1e5.",
+            exclusive_low=True,
+        ),
+    },
+}
+#: Schema of a robot data file: ``<name>.yaml`` beside ``<name>.urdf``, or in ``robots/`` for
+#: an example-robot-data name.
 ROBOT_DATA_SCHEMA: dict[str, Any] = {
     "type": "object",
     "additionalProperties": False,
     "properties": {
         "drives": DRIVES_SCHEMA,
+        "brakes": {
+            "type": "object",
+            "additionalProperties": BRAKE_SCHEMA,
+            "description": "The robot's brakes per joint name, used by every scenario with a "
+            "stop unless it gives that joint's brake itself.",
+        },
+        "rated_payload": number(
+            0.0, MAX_MASS, "The maker's rated (maximum) payload [kg]; larger ones are flagged."
+        ),
         "tool_frame": {"type": "string", "description": "Frame followed by stopping reports."},
         "assumptions": {
             "type": "array",
@@ -162,6 +226,8 @@ class Robot:
         assumptions: Stated assumptions behind the model's figures (from the robot's
             ``<name>.yaml`` beside its URDF), quoted by reports.
         drives: The drive of every joint that has one (robot data, then the caller's).
+        rated_payload: The maker's rated payload [kg] from the robot data file; None if not
+            known.
         cache: Reduced models and Pinocchio Data built from ``model`` (see
             :mod:`vtm_pin.model_cache`); a new robot, or a copy with another model, starts
             with an empty one. ``model`` must not be changed in place once it is used.
@@ -175,6 +241,7 @@ class Robot:
     tool_frame: str = ""
     assumptions: tuple[str, ...] = ()
     drives: Mapping[str, Drive] = field(default_factory=dict)
+    rated_payload: float | None = None
     cache: ModelCache = field(default_factory=ModelCache, init=False, repr=False, compare=False)
 
     @property
@@ -244,7 +311,7 @@ def load_robot(
             source, "has no moving joint; vtm-pin needs at least one revolute or prismatic joint"
         )
     _check_geometry(model, source)
-    sidecar = _read_sidecar(Path(source).with_suffix(".yaml"), joints)
+    sidecar = _read_sidecar(robot_data_file(text, source), joints)
     all_drives = {**sidecar.get("drives", {}), **(drives or {})}
     gear_ratio = np.ones(len(joints))
     for joint, drive in all_drives.items():
@@ -270,6 +337,7 @@ def load_robot(
         tool_frame=tool_frame,
         assumptions=tuple(sidecar.get("assumptions", ())),
         drives=all_drives,
+        rated_payload=sidecar.get("rated_payload"),
     )
 
 
@@ -328,8 +396,52 @@ def _load_model(text: str, base_dir: Path | None) -> tuple[pin.Model, str]:
     return wrapper.model, str(getattr(wrapper, "urdf", text))
 
 
-def _read_sidecar(path: Path, joints: Sequence[str]) -> dict[str, Any]:
-    """Drives, tool frame and assumptions from ``<urdf stem>.yaml``, if that file exists.
+def robot_data_file(spec: str, urdf: str | Path | None = None) -> Path | None:
+    """The robot data file of the robot ``spec`` names; None if it has none.
+
+    ``<name>.yaml`` beside the robot's URDF (``urdf`` when it is known, else ``spec`` if it is
+    a URDF path), or, for a name, ``robots/<name>.yaml`` (an example-robot-data robot's data
+    is kept there too). Only the file's place: whether it is robot data (no ``robot`` key) is
+    decided when it is read.
+    """
+    try:
+        candidates = []
+        if urdf is not None and str(urdf).lower().endswith(".urdf"):
+            candidates.append(Path(urdf).with_suffix(".yaml"))
+        elif Path(spec).suffix.lower() == ".urdf":
+            candidates.append(Path(spec).with_suffix(".yaml"))
+        if spec and "/" not in spec and Path(spec).suffix == "":
+            candidates.append(ROBOTS_DIR / f"{spec}.yaml")
+        return next((c for c in candidates if c.is_file()), None)
+    except (OSError, ValueError):  # a name too long for a path, or with a NUL in it
+        return None
+
+
+def robot_data(spec: str, base_dir: Path | None = None) -> Mapping[str, Any]:
+    """The robot data file of ``spec`` (a scenario's ``robot``), parsed and checked; {} if none.
+
+    Raises:
+        RobotDataError: The file is malformed; the message names it and the key.
+    """
+    path = Path(spec)
+    if base_dir is not None and not path.is_absolute():
+        try:
+            if (base_dir / path).exists():
+                spec = str(base_dir / path)
+        except (OSError, ValueError):
+            pass
+    found = robot_data_file(spec)
+    if found is None:
+        return {}
+    raw = read_yaml(found, RobotDataError)
+    if raw is None or (isinstance(raw, Mapping) and "robot" in raw):
+        return {}
+    check_schema(raw, ROBOT_DATA_SCHEMA, str(found), RobotDataError)
+    return dict(raw)
+
+
+def _read_sidecar(path: Path | None, joints: Sequence[str]) -> dict[str, Any]:
+    """Drives, tool frame, rated payload and assumptions from the robot data file, if any.
 
     A file there with a ``robot`` key is a scenario (every scenario names its robot), not
     robot data: it is ignored. Robot data follow :data:`ROBOT_DATA_SCHEMA`, the same rules as
@@ -339,7 +451,7 @@ def _read_sidecar(path: Path, joints: Sequence[str]) -> dict[str, Any]:
         RobotDataError: The file is malformed; the message names it and the key.
     """
     try:
-        if not path.is_file():
+        if path is None or not path.is_file():
             return {}
     except (OSError, ValueError):
         return {}
@@ -359,10 +471,19 @@ def _read_sidecar(path: Path, joints: Sequence[str]) -> dict[str, Any]:
             drives[joint] = Drive.from_spec(d)
         except ValueError as exc:
             raise RobotDataError(str(path), f"drives.{excerpt(joint)}", str(exc)) from exc
+    for joint in raw.get("brakes", {}):
+        if joint not in joints:
+            raise RobotDataError(
+                str(path),
+                f"brakes.{excerpt(joint)}",
+                f"unknown joint; the joints are: {', '.join(joints)}",
+            )
+    rated = raw.get("rated_payload")
     return {
         "drives": drives,
         "tool_frame": raw.get("tool_frame"),
         "assumptions": list(raw.get("assumptions", [])),
+        "rated_payload": None if rated is None else float(rated),
     }
 
 

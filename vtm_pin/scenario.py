@@ -29,25 +29,22 @@ from .exceptions import (
 )
 from .friction import Coulomb, FrictionLaw, IdealLock, Stribeck, Viscous
 from .holonomic import FrameConstraint
-from .inputs import check_schema, number, read_yaml
+from .inputs import MAX_MASS, MAX_RATE, MAX_TIME, MAX_TORQUE, check_schema, number, read_yaml
 from .integrators import DEFAULT_MAX_STEPS, DOP853, FIXED_STEP, INTEGRATORS, Integrator
 from .integrators.base import steps_text
 from .payload import Payload, attach_payload, describe_payload, inertia_matrix
 from .problem import LockEvent, Problem, check_transition
 from .results import SimulationResult
-from .robot import DRIVES_SCHEMA, Drive, Robot, load_robot
+from .robot import BRAKE_SCHEMA, DRIVES_SCHEMA, Drive, Robot, load_robot, robot_data
+from .separation import Separation, parse_separation
 from .simulation import simulate
 from .stop import DEFAULT_GAIN, DEFAULT_REST_SPEED, Stop
 from .transitions import TRANSITIONS
 
-#: Bounds of scenario values: generous but finite, so that every number a file gives is one a
-#: robot can have; a value outside them is a typo (or 1e308) and is refused with its key.
-MAX_TIME = 3600.0  # [s] durations, event times, delays and ramps
+#: Bounds of scenario values besides those of :mod:`vtm_pin.inputs` (MAX_TIME, MAX_RATE,
+#: MAX_TORQUE): generous but finite, a value outside them is a typo and refused with its key.
 MAX_POSITION = 1.0e3  # [rad or m] joint positions
-MAX_RATE = 1.0e3  # [rad/s or m/s] joint rates
-MAX_TORQUE = 1.0e6  # [N m] drive torque limits and brake torques
 MAX_GAIN = 1.0e4  # [1/s] velocity feedback gain of a category-1 stop
-MAX_VISCOUS_VELOCITY = 1.0e5  # [rad/s] motor side: above it a viscous brake is Coulomb's
 #: [1/s] Baumgarte gains: a correction faster than 1 ms is faster than any event of a stop,
 #: and above it the term beta^2 h amplifies round-off so that a tight dop853 run stalls.
 MAX_BAUMGARTE = 1.0e3
@@ -155,7 +152,7 @@ SCHEMA: dict[str, Any] = {
             "required": ["mass"],
             "description": "A rigid payload (gripper and part) attached to a frame. Default: none.",
             "properties": {
-                "mass": number(0.0, 1.0e5, "Mass [kg], >= 0."),
+                "mass": number(0.0, MAX_MASS, "Mass [kg], >= 0."),
                 "com": {
                     **_VECTOR3_M,
                     "description": "Centre of mass [m] in the frame. Default: [0, 0, 0].",
@@ -317,49 +314,56 @@ SCHEMA: dict[str, Any] = {
         },
         "brakes": {
             "type": "object",
-            "description": "Brake per joint name; acts after the stop signal. Default: none.",
-            "additionalProperties": {
-                "type": "object",
-                "additionalProperties": False,
-                "properties": {
-                    "ideal": {
-                        "type": "boolean",
-                        "description": "Infinite torque: lock at engagement. Default: false.",
+            "description": "Brake per joint name; acts after the stop signal. Default: the "
+            "robot data file's brakes (with a stop); null: this joint has no brake.",
+            "additionalProperties": {**BRAKE_SCHEMA, "type": ["object", "null"]},
+        },
+        "safeguard": {
+            "type": "object",
+            "additionalProperties": False,
+            "required": ["detection_time", "response_time", "latency"],
+            "description": "The stopping chain before the robot's own stop, for ISO 13855's "
+            "overall T and the separation distances. Default: none (T, S, S_p not computed).",
+            "properties": {
+                "detection_time": _time("The protective device's detection time [s]."),
+                "response_time": _time("The safety controller's response time [s]."),
+                "latency": _time("Latency of the stop signal to the robot [s]."),
+            },
+        },
+        "separation": {
+            "type": "object",
+            "additionalProperties": False,
+            "description": "Inputs of the separation distances (needs safeguard). Default: none.",
+            "properties": {
+                "iso13855": {
+                    "type": "object",
+                    "additionalProperties": False,
+                    "required": ["approach_speed", "intrusion_distance", "supplement"],
+                    "description": "ISO 13855:2024: S = K T + D_DS + Z; none defaulted.",
+                    "properties": {
+                        "approach_speed": number(
+                            0.0, 10.0, "K, approach speed [m/s], > 0.", exclusive_low=True
+                        ),
+                        "intrusion_distance": number(
+                            0.0, MAX_DISTANCE, "D_DS, intrusion distance of the detection zone [m]."
+                        ),
+                        "supplement": number(0.0, MAX_DISTANCE, "Z, supplemental distance [m]."),
                     },
-                    "delay": _time("Engagement delay [s], >= 0."),
-                    "ramp": _time("Normal-force rise time [s]."),
-                    "sliding_torque": number(
-                        0.0,
-                        MAX_TORQUE,
-                        "Kinetic torque, motor side [N m], > 0 and at most 1e6.",
-                        exclusive_low=True,
-                    ),
-                    "static_torque": number(
-                        0.0,
-                        MAX_TORQUE,
-                        "Holding torque, motor side [N m] >= sliding, at most 1e6.",
-                        exclusive_low=True,
-                    ),
-                    "friction": {
-                        "enum": ["coulomb", "stribeck", "viscous"],
-                        "description": "Friction law: coulomb (constant sliding torque), "
-                        "stribeck (falls from the static to the sliding torque over "
-                        "stribeck_velocity) or viscous (grows with the slip speed: "
-                        "sliding_torque (1 + w / viscous_velocity)). Default: coulomb.",
+                },
+                "iso_ts_15066": {
+                    "type": "object",
+                    "additionalProperties": False,
+                    "required": ["intrusion_distance", "human_uncertainty", "robot_uncertainty"],
+                    "description": "ISO/TS 15066 speed and separation monitoring: "
+                    "S_p = S_h + S_r + S_s + C + Z_d + Z_r.",
+                    "properties": {
+                        "human_speed": number(
+                            0.0, 10.0, "v_h [m/s], > 0. Default: 1.6.", exclusive_low=True
+                        ),
+                        "intrusion_distance": number(0.0, MAX_DISTANCE, "C [m]."),
+                        "human_uncertainty": number(0.0, MAX_DISTANCE, "Z_d [m]."),
+                        "robot_uncertainty": number(0.0, MAX_DISTANCE, "Z_r [m]."),
                     },
-                    "stribeck_velocity": number(
-                        0.0,
-                        MAX_RATE,
-                        "Stribeck law: motor speed of the drop [rad/s], > 0, at most 1e3.",
-                        exclusive_low=True,
-                    ),
-                    "viscous_velocity": number(
-                        0.0,
-                        MAX_VISCOUS_VELOCITY,
-                        "Viscous law: motor speed at which the kinetic torque is twice "
-                        "sliding_torque [rad/s], > 0, at most 1e5.",
-                        exclusive_low=True,
-                    ),
                 },
             },
         },
@@ -430,6 +434,8 @@ class Scenario:
         constraint_keys: Key in the file of each frame constraint, by name (for messages).
         payload: The payload attached to the robot (already in ``robot``'s model), if any.
         test_state: The Annex-B test state the initial state was computed from, if any.
+        separation: The stopping chain before the robot and the separation distances' inputs
+            (``safeguard``, ``separation``), each part None where not given.
     """
 
     source: str
@@ -443,6 +449,7 @@ class Scenario:
     constraint_keys: Mapping[str, str] = field(default_factory=dict)
     payload: Payload | None = None
     test_state: TestState | None = None
+    separation: Separation = field(default_factory=Separation)
 
     @property
     def robot(self) -> Robot:
@@ -664,7 +671,20 @@ def build_scenario(
         constraint_keys=names,
         payload=payload,
         test_state=test_state,
+        separation=_separation(raw, source),
     )
+
+
+def _separation(raw: Mapping[str, Any], source: str) -> Separation:
+    """The stopping chain and separation inputs; the distances need the safeguard's times."""
+    if "separation" in raw and "safeguard" not in raw:
+        raise ScenarioError(
+            source,
+            "separation",
+            "the separation distances need the stopping chain before the robot: give safeguard "
+            "(detection_time, response_time, latency [s])",
+        )
+    return parse_separation(raw)
 
 
 def _drives(raw: Mapping[str, Any], source: str) -> dict[str, Drive]:
@@ -743,13 +763,41 @@ FRAGMENT_SCHEMA: dict[str, Any] = {
 
 
 def merge_includes(raw: Mapping[str, Any], source: str, base_dir: Path | None) -> Mapping[str, Any]:
-    """``raw`` with its included fragments merged in (per joint; the scenario's keys win).
+    """``raw`` with its included fragments and its robot's brakes merged in.
 
-    The result has no ``include`` key: merging it again changes nothing.
+    Fragments are merged per joint and key (the scenario's keys win). With a ``stop``, the
+    brakes of the robot data file (:func:`vtm_pin.robot.robot_data`) then fill in every joint
+    the scenario and its fragments give no brake (a joint given ``null`` keeps none). The
+    result has no ``include`` key and names every brake: merging it again changes nothing.
 
     Raises:
-        ScenarioError: A fragment cannot be read or breaks the fragment schema.
+        ScenarioError: A fragment or the robot data file cannot be read or breaks its schema.
     """
+    return _merge_robot_brakes(_merge_fragments(raw, source, base_dir), source, base_dir)
+
+
+def _merge_robot_brakes(
+    raw: Mapping[str, Any], source: str, base_dir: Path | None
+) -> Mapping[str, Any]:
+    """``raw`` with the robot data file's brakes for the joints it gives none (with a stop)."""
+    if "stop" not in raw or not isinstance(raw.get("robot"), str):
+        return raw
+    try:
+        data = robot_data(raw["robot"], base_dir)
+    except VtmError as exc:
+        raise ScenarioError(source, "robot", str(exc)) from exc
+    missing = {
+        j: dict(b) for j, b in data.get("brakes", {}).items() if j not in raw.get("brakes", {})
+    }
+    if not missing:
+        return raw
+    return {**raw, "brakes": {**missing, **raw.get("brakes", {})}}
+
+
+def _merge_fragments(
+    raw: Mapping[str, Any], source: str, base_dir: Path | None
+) -> Mapping[str, Any]:
+    """``raw`` with its included fragments merged in (per joint; the scenario's keys win)."""
     if "include" not in raw:
         return raw
     merged = {key: value for key, value in raw.items() if key != "include"}
@@ -767,7 +815,8 @@ def merge_includes(raw: Mapping[str, Any], source: str, base_dir: Path | None) -
         for section in ("drives", "brakes"):
             joints = {**fragment.get(section, {})}
             for joint, spec in merged.get(section, {}).items():
-                joints[joint] = {**joints.get(joint, {}), **spec}
+                base = joints.get(joint) or {}
+                joints[joint] = None if spec is None else {**base, **spec}
             if joints:
                 merged[section] = joints
         assumptions += fragment.get("assumptions", [])
@@ -880,6 +929,8 @@ def _constraint(
 def _brakes(raw: Mapping[str, Any], source: str) -> tuple[Brake, ...]:
     brakes = []
     for joint, spec in raw.items():
+        if spec is None:  # this joint has no brake (not even the robot data file's)
+            continue
         key = f"brakes.{excerpt(joint)}"
         try:
             brakes.append(

@@ -115,7 +115,7 @@ def _set_category(raw: dict[str, Any], value: Any) -> None:
 def _scale_brakes(raw: dict[str, Any], value: Any) -> None:
     for spec in raw.get("brakes", {}).values():
         for key in ("sliding_torque", "static_torque"):
-            if key in spec:
+            if spec is not None and key in spec:
                 spec[key] = spec[key] * value
     raw.setdefault("assumptions", []).append(
         f"Worn brakes (study axis brake_scale): every brake torque stated above is scaled by "
@@ -125,7 +125,7 @@ def _scale_brakes(raw: dict[str, Any], value: Any) -> None:
 
 def _fail_brake(raw: dict[str, Any], value: Any) -> None:
     if value is not None and value != "none":
-        raw.get("brakes", {}).pop(value, None)
+        raw.setdefault("brakes", {})[value] = None  # no brake, not even the robot data's
         raw.setdefault("assumptions", []).append(
             f"Single fault (study axis failed_brake): the brake of {value} gives no torque in "
             "this case."
@@ -341,22 +341,25 @@ def _shown(value: Any) -> str:
 
 def _robot_digest(base: Mapping[str, Any], folder: Path) -> str:
     """A digest of the robot's files (URDF and data file), or the package it comes from."""
-    from .robot import ROBOTS_DIR
+    from .robot import ROBOTS_DIR, robot_data_file
 
     spec = str(base.get("robot", ""))
+    side = robot_data_file(spec)
+    extra = side.read_bytes() if side is not None else b""
     for candidate in (folder / spec, ROBOTS_DIR / f"{spec}.urdf"):
         try:
             if candidate.is_file():
                 data = candidate.read_bytes()
                 side = candidate.with_suffix(".yaml")
-                data += side.read_bytes() if side.is_file() else b""
+                data += side.read_bytes() if side.is_file() else extra
                 return hashlib.sha256(data).hexdigest()
         except (OSError, ValueError):
             continue
     try:
-        return f"example-robot-data {version('example-robot-data')}"
+        package = f"example-robot-data {version('example-robot-data')}"
     except PackageNotFoundError:
-        return "unknown"
+        package = "unknown"
+    return package + (f", {hashlib.sha256(extra).hexdigest()}" if extra else "")
 
 
 def _version() -> str:
@@ -387,7 +390,7 @@ def _check_axis(name: str, base: Mapping[str, Any], schema: Mapping[str, Any], s
                 "brakes.elbow_joint.sliding_torque, brakes.*.delay)",
             )
     if parts[0] == "brakes" and len(parts) > 1 and parts[1] != "*":
-        if parts[1] not in base.get("brakes", {}):
+        if base.get("brakes", {}).get(parts[1]) is None:
             raise StudyError(
                 source,
                 f"vary.{excerpt(name)}",
@@ -396,7 +399,7 @@ def _check_axis(name: str, base: Mapping[str, Any], schema: Mapping[str, Any], s
 
 
 def _check_failed_brakes(values: list[Any], base: Mapping[str, Any], source: str) -> None:
-    brakes = list(base.get("brakes", {}))
+    brakes = [joint for joint, spec in base.get("brakes", {}).items() if spec is not None]
     for value in values:
         if value not in (None, "none") and value not in brakes:
             raise StudyError(

@@ -17,10 +17,13 @@ ISO 10218-1 Annex B, so that safety engineers can compare the two:
 The results table's columns are ``case``, then the varied axes (any of ``joint``, ``speed``
 [fraction of the joint's velocity limit], ``payload`` [kg], ``extension`` [fraction of
 maximum reach], ``category`` and others), then ``status`` (``ok``, ``not_stopped`` or
-``error: <message>``), ``stop_time`` [s], ``stop_angle`` [rad], ``tcp_distance`` [m],
-``tcp_path`` [m], ``peak_tcp_speed`` [m/s], per-joint ``stop_time.<joint>`` [s] and
-``stop_angle.<joint>`` [rad], and ``wall_time`` [s]. Only cases with status ``ok`` carry
-results: the tables show NaN ("—") for the others and the graphs leave them out.
+``error: <message>``), ``holds`` and ``flags`` (:mod:`vtm_pin.flags`), the figures of
+:data:`vtm_pin.figures.METRICS` (``robot_stop_time`` [s], the robot's own stop, never ISO
+13855's overall T; ``stop_angle`` [rad]; ``tcp_max_displacement`` [m], S_s; ...) with an
+``<figure>_upper`` bound beside each where the study asked for bounds, per-joint
+``stop_time.<joint>`` [s] and ``stop_angle.<joint>`` [rad], and ``wall_time`` [s]. Only cases
+with status ``ok`` carry results: the tables show NaN ("—") for the others and the graphs
+leave them out.
 
 Figures are built with :class:`matplotlib.figure.Figure` (no pyplot state), like
 :mod:`vtm_pin.plotting`, so they render headless. Matplotlib is imported only when a figure is
@@ -43,6 +46,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from .figures import DEFINITIONS as FIGURE_DEFINITIONS
+from .figures import METRICS as FIGURE_METRICS
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
@@ -56,23 +62,13 @@ CONTINUOUS_VALUES = 8
 MAX_EXTENSION_PANELS = 3
 #: Known axes in the order an Annex-B table is sorted by.
 SORT_AXES = ("category", "joint", "payload", "extension", "speed")
-#: Result columns (per-joint ``stop_time.<joint>`` and ``stop_angle.<joint>`` as well).
-RESULT_COLUMNS = (
-    "status",
-    "stop_time",
-    "stop_angle",
-    "tcp_distance",
-    "tcp_path",
-    "peak_tcp_speed",
-    "test_stop_time",
-    "test_speed",
-    "test_reach",
-    "wall_time",
-)
+#: Result columns (per-joint ``stop_time.<joint>`` and ``stop_angle.<joint>``, and every
+#: ``<figure>_upper`` bound, as well).
+RESULT_COLUMNS = ("status", "holds", "flags", *FIGURE_METRICS, "wall_time")
 #: Statistics of the distribution table: label and function of the values of ok cases.
 STATISTICS = ("median", "p95", "max")
 #: Quantities of the tables and graphs: column, unit.
-QUANTITIES = (("stop_time", "s"), ("stop_angle", "rad"), ("tcp_distance", "m"))
+QUANTITIES = (("robot_stop_time", "s"), ("stop_angle", "rad"), ("tcp_max_displacement", "m"))
 
 #: Units of the results table's columns (``summary["units"]`` overrides them).
 UNITS = {
@@ -83,11 +79,9 @@ UNITS = {
     "extension": "1 (fraction of maximum reach; % in tables and graphs)",
     "category": "—",
     "status": "—",
-    "stop_time": "s",
-    "stop_angle": "rad",
-    "tcp_distance": "m",
-    "tcp_path": "m",
-    "peak_tcp_speed": "m/s",
+    "holds": "—",
+    "flags": "—",
+    **FIGURE_METRICS,
     "wall_time": "s",
 }
 #: Definitions of the results table's columns (``summary["definitions"]`` overrides them).
@@ -102,14 +96,9 @@ DEFINITIONS = {
     "the arm; 1 brakes with the drives first, then removes power.",
     "status": "ok: every joint came to rest; not_stopped: a joint was still moving at the "
     "end of the simulated time; error: the case could not be run (the message says why).",
-    "stop_time": "T, the stopping time: from the stop signal until every joint is at rest "
-    "for good.",
-    "stop_angle": "Stopping distance of the tested joint (Annex B): its travel from the stop "
-    "signal until it is at rest, as an absolute value.",
-    "tcp_distance": "S_s, the stopping distance of the tool frame: straight-line distance "
-    "from its position at the stop signal to its position at rest.",
-    "tcp_path": "Length of the path the tool frame sweeps from the stop signal until rest.",
-    "peak_tcp_speed": "Highest speed of the tool frame after the stop signal.",
+    "holds": "Whether every brake holds its joint's gravity load throughout the stop.",
+    "flags": "Broken assumptions behind the case's figures.",
+    **FIGURE_DEFINITIONS,
     "wall_time": "Computing time of the case.",
 }
 _PER_JOINT = {
@@ -118,7 +107,7 @@ _PER_JOINT = {
 }
 _ROWS = (
     ("stop_angle", "stopping distance\nstop_angle [rad]"),
-    ("stop_time", "stopping time\nstop_time [s]"),
+    ("robot_stop_time", "robot's stopping time\nT_robot [s]"),
 )
 _STYLES = ["-", "--", ":", "-."]
 _CSS = """
@@ -169,8 +158,10 @@ def annex_b_table(table: pd.DataFrame) -> pd.DataFrame:
     Rows are sorted by category, joint (in the order the table names them), payload,
     extension and speed (the axes present), then by the other axes. Columns: the axes
     (``speed [%]`` of the joint's velocity limit, ``extension [%]`` of maximum reach,
-    ``payload [kg]``), ``stop_time [s]``, ``stop_angle [rad]``, ``stop_angle [deg]``,
-    ``tcp_distance [m]``, ``status`` and ``case``. Results are NaN unless the status is ok.
+    ``payload [kg]``), ``robot_stop_time [s]``, ``stop_angle [rad]``, ``stop_angle [deg]``,
+    ``tcp_max_displacement [m]`` (S_s), the overall T, S and S_p where computed, ``holds``,
+    ``flags``, ``status`` and ``case``; each figure's ``_upper`` bound beside it where the
+    study asked for bounds. Results are NaN unless the status is ok.
 
     Args:
         table: The study's results table (see the module docstring).
@@ -186,15 +177,36 @@ def annex_b_table(table: pd.DataFrame) -> pd.DataFrame:
         label, values = _axis_column(table, axis)
         out[label] = values
     angle = _numbers(table, "stop_angle").abs().where(ok)
-    out["stop_time [s]"] = _numbers(table, "stop_time").where(ok)
-    if "test_stop_time" in table.columns:  # the tested joint's own, as makers publish it
-        out["test_stop_time [s]"] = _numbers(table, "test_stop_time").where(ok)
+    _figure(out, table, "robot_stop_time", "s", ok)
+    _figure(out, table, "test_stop_time", "s", ok)  # the tested joint's own, as makers do
     out["stop_angle [rad]"] = angle
     out["stop_angle [deg]"] = np.degrees(angle)
-    out["tcp_distance [m]"] = _numbers(table, "tcp_distance").where(ok)
+    _figure(out, table, "stop_angle", "rad", ok, nominal=False)
+    _figure(out, table, "tcp_max_displacement", "m", ok)
+    for name in ("overall_stop_time", "iso13855_distance", "ssm_distance"):
+        if name in table.columns and _numbers(table, name).notna().any():
+            _figure(out, table, name, FIGURE_METRICS[name], ok)
+    for column in ("holds", "flags"):
+        if column in table.columns:
+            out[column] = table[column]
     out["status"] = _status(table)
     out["case"] = table["case"].astype(str) if "case" in table else [str(i) for i in table.index]
     return out.iloc[_sorted_positions(table, axes)].reset_index(drop=True)
+
+
+def _figure(
+    out: pd.DataFrame,
+    table: pd.DataFrame,
+    name: str,
+    unit: str,
+    ok: pd.Series,
+    nominal: bool = True,
+) -> None:
+    """Add the figure ``name [unit]`` (unless not ``nominal``) and its upper bound to ``out``."""
+    if nominal and name in table.columns:
+        out[f"{name} [{unit}]"] = _numbers(table, name).where(ok)
+    if f"{name}_upper" in table.columns:
+        out[f"{name}_upper [{unit}]"] = _numbers(table, f"{name}_upper").where(ok)
 
 
 def distribution_table(table: pd.DataFrame) -> pd.DataFrame:
@@ -202,8 +214,8 @@ def distribution_table(table: pd.DataFrame) -> pd.DataFrame:
 
     For each group: the number of cases and of ok, not-stopped and failed ones, then the
     median, 95th percentile (linear interpolation, as :func:`numpy.percentile`) and maximum
-    of ``stop_time`` [s], ``stop_angle`` [rad] (absolute) and ``tcp_distance`` [m] over the
-    ok cases (NaN if there are none).
+    of ``robot_stop_time`` [s], ``stop_angle`` [rad] (absolute) and ``tcp_max_displacement``
+    [m] over the ok cases (NaN if there are none), and the number of flagged cases.
 
     Args:
         table: The study's results table (see the module docstring).
@@ -212,8 +224,11 @@ def distribution_table(table: pd.DataFrame) -> pd.DataFrame:
         One row per group, sorted by category, then joint in the table's order.
     """
     keys = [k for k in ("category", "joint") if k in table.columns]
-    columns = [*keys, "cases", "ok", "not_stopped", "error"]
-    columns += [f"{name} {stat} [{unit}]" for name, unit in QUANTITIES for stat in STATISTICS]
+    columns = [*keys, "cases", "ok", "not_stopped", "error", "cannot_hold", "flagged"]
+    for name, unit in QUANTITIES:
+        columns += [f"{name} {stat} [{unit}]" for stat in STATISTICS]
+        if f"{name}_upper" in table.columns:
+            columns.append(f"{name}_upper max [{unit}]")
     ordered = table.iloc[_sorted_positions(table, keys)]
     rows = [
         _distribution_row(dict(zip(keys, key, strict=True)), group)
@@ -279,13 +294,17 @@ def plot_stopping_graphs(table: pd.DataFrame, *, robot: str = "") -> dict[str, F
     """Annex-B stopping graphs: one figure per tested joint (and stop category), by file name.
 
     Each figure has two rows, the stopping distance (``stop_angle`` [rad], absolute) and the
-    stopping time (``stop_time`` [s]), and one column per extension value, against the speed
+    robot's stopping time (``robot_stop_time`` [s]), and one column per extension value,
+    against the speed
     [% of the joint's velocity limit], one curve per payload ("payload 5 kg"). Without a
     payload axis there is one curve, without an extension axis one column. When an axis was
     sampled (more than :data:`CONTINUOUS_VALUES` distinct values) the cases are scattered,
     coloured by payload with a colour bar, and extension is binned into at most
     :data:`MAX_EXTENSION_PANELS` panels whose titles give the bin edges. Only ok cases are
-    drawn; the title says how many of the cases that is.
+    drawn; the title says how many of the cases that is. Flagged cases are drawn again on top,
+    red crosses where a brake cannot hold the load (the arm collapses), orange triangles for
+    the other flags; where the table has ``<figure>_upper`` bounds, each curve's bound is a
+    shaded band above it (scattered: a short bar above each case).
 
     File names are ``stopping_<joint>.png``, with ``_cat<category>`` when the table has
     several stop categories (``stopping.png`` without a joint axis).
@@ -321,10 +340,10 @@ def _stopping_figure(group: pd.DataFrame, layout: _Layout, title: str) -> Figure
 
     n = len(layout.titles)
     # Fixed margins, not a layout engine: constrained layout took 2/3 of a study's report time.
-    width = 2.5 + 3.4 * n
+    width = max(8.0, 2.5 + 3.4 * n)  # room for the title and the key beside one panel
     fig = Figure(figsize=(width, 6.4))
     fig.subplots_adjust(
-        left=1.0 / width, right=1.0 - 2.0 / width, bottom=0.1, top=0.86, wspace=0.12, hspace=0.12
+        left=1.0 / width, right=1.0 - 2.6 / width, bottom=0.1, top=0.86, wspace=0.12, hspace=0.12
     )
     axes = fig.subplots(2, n, sharex=True, sharey="row", squeeze=False)
     ok = group[_status(group) == "ok"]
@@ -337,6 +356,7 @@ def _stopping_figure(group: pd.DataFrame, layout: _Layout, title: str) -> Figure
                 _scatter(ax, part, column, layout)
             else:
                 _lines(ax, part, column, layout)
+            _flagged(ax, part, column)
             ax.grid(alpha=0.3)
         axes[0, col].set_title(layout.titles[col], fontsize="medium")
         axes[1, col].set_xlabel(
@@ -365,20 +385,78 @@ def _lines(ax: Axes, part: pd.DataFrame, column: str, layout: _Layout) -> None:
             label = ", ".join(
                 t for t in (_payload_text(payload), combo if layout.others else "") if t
             )
+            x = _speed_percent(curve)
             ax.plot(
-                _speed_percent(curve),
-                _numbers(curve, column).abs() if column == "stop_angle" else curve[column],
+                x,
+                _values(curve, column),
                 _STYLES[k % len(_STYLES)],
                 marker="o",
                 markersize=4,
                 color=f"C{p % 10}",
                 label=label or "cases",
             )
+            if f"{column}_upper" in curve.columns:
+                ax.fill_between(
+                    x,
+                    _values(curve, column),
+                    _values(curve, f"{column}_upper"),
+                    color=f"C{p % 10}",
+                    alpha=0.15,
+                    linewidth=0,
+                    label="one-sided upper bound (band)",
+                )
+
+
+def _values(frame: pd.DataFrame, column: str) -> np.ndarray:
+    """A figure's values as floats (stop angles, and their bounds, as absolute values)."""
+    values = _numbers(frame, column).to_numpy(float)
+    return np.abs(values) if column.startswith("stop_angle") else values
+
+
+def _flagged(ax: Axes, part: pd.DataFrame, column: str) -> None:
+    """Flagged cases on top: red crosses (a brake cannot hold), orange triangles (others)."""
+    if "flags" not in part.columns or part.empty:
+        return
+    flags = _flag_texts(part).to_numpy()
+    collapse = np.array(["brake_cannot_hold" in f for f in flags], dtype=bool)
+    other = (flags != "") & ~collapse
+    x, y = _speed_percent(part), _values(part, column)
+    if collapse.any():
+        ax.scatter(
+            x[collapse],
+            y[collapse],
+            marker="x",
+            color="red",
+            s=50,
+            zorder=5,
+            label="FLAGGED: brake cannot hold",
+        )
+    if other.any():
+        ax.scatter(
+            x[other],
+            y[other],
+            marker="^",
+            facecolors="none",
+            edgecolors="darkorange",
+            s=40,
+            zorder=5,
+            label="flagged (see report)",
+        )
 
 
 def _scatter(ax: Axes, part: pd.DataFrame, column: str, layout: _Layout) -> None:
-    """The cases as points, coloured by payload when it varies."""
+    """The cases as points, coloured by payload when it varies; bounds as bars above them."""
     y = _numbers(part, column).abs() if column == "stop_angle" else _numbers(part, column)
+    if f"{column}_upper" in part.columns:
+        ax.vlines(
+            _speed_percent(part),
+            _values(part, column),
+            _values(part, f"{column}_upper"),
+            color="0.5",
+            alpha=0.5,
+            linewidth=1.0,
+            label="one-sided upper bound (bar)",
+        )
     if len(layout.payloads) > 1:
         ax.scatter(
             _speed_percent(part),
@@ -398,6 +476,19 @@ def _scatter(ax: Axes, part: pd.DataFrame, column: str, layout: _Layout) -> None
 def _key(fig: Figure, axes: np.ndarray, layout: _Layout) -> None:
     """The figure's legend (line mode) or payload colour bar (scatter mode)."""
     if layout.scatter:
+        flagged = {
+            label: handle
+            for ax in axes.flat
+            for handle, label in zip(*ax.get_legend_handles_labels(), strict=True)
+        }
+        if flagged:
+            fig.legend(
+                list(flagged.values()),
+                list(flagged),
+                loc="lower center",
+                fontsize="small",
+                ncols=min(3, len(flagged)),
+            )
         if len(layout.payloads) > 1:
             from matplotlib.cm import ScalarMappable
             from matplotlib.colors import Normalize
@@ -418,7 +509,7 @@ def _key(fig: Figure, axes: np.ndarray, layout: _Layout) -> None:
             list(handles.values()),
             list(handles),
             loc="upper left",
-            bbox_to_anchor=(1.0 - 1.9 / fig.get_figwidth(), 0.86),
+            bbox_to_anchor=(1.0 - 2.5 / fig.get_figwidth(), 0.86),
             fontsize="small",
         )
 
@@ -503,6 +594,7 @@ def render_report_html(
         _section_graphs(images),
         _section_results(summary, table),
         _section_failures(table),
+        _section_flagged(summary, table),
         _section_assumptions(summary),
         _section_definitions(summary, table),
         _section_versions(summary),
@@ -654,6 +746,59 @@ def _section_failures(table: pd.DataFrame) -> str:
     return "\n".join(parts)
 
 
+#: Most flagged cases the report lists one by one (the table has them all).
+MAX_FLAGGED_LISTED = 100
+
+
+def _section_flagged(summary: Mapping[str, Any], table: pd.DataFrame) -> str:
+    """The cases whose figures rest on broken assumptions, with what broke."""
+    table = table.reset_index(drop=True)
+    flags = _flag_texts(table) if "flags" in table else None
+    parts = ["<section id='flagged'>", "<h2>Flagged cases</h2>"]
+    if flags is None or not (flags != "").any():
+        parts.append(
+            "<p>None: in every case every brake holds its joint's load, no other joint "
+            "slips, and payload and tool speed are within the robot's figures.</p>"
+        )
+        parts.append("</section>")
+        return "\n".join(parts)
+    flagged = table[flags != ""]
+    collapse = int(flags.str.contains("brake_cannot_hold").sum())
+    falls = (
+        f"; in {collapse} a brake cannot hold the load and the arm collapses" if collapse else ""
+    )
+    parts.append(
+        f"<p class='banner'><strong>{len(flagged)} of {len(table)} cases are flagged</strong>"
+        f"{falls}. Their figures describe what the model computes under broken assumptions: "
+        "do not sign "
+        "them as stopping data. The graphs mark them (red crosses: a brake cannot hold; "
+        "orange triangles: other flags).</p>"
+    )
+    messages = {
+        str(item.get("case")): "; ".join(f"{f['kind']}: {f['message']}" for f in item["flags"])
+        for item in summary.get("flagged", [])
+    }
+    frame = pd.DataFrame(index=flagged.index[:MAX_FLAGGED_LISTED])
+    shown = flagged.iloc[:MAX_FLAGGED_LISTED]
+    frame["case"] = shown["case"].astype(str) if "case" in shown else shown.index
+    for axis in study_axes(table):
+        label, values = _axis_column(shown, axis)
+        frame[label] = values
+    frame["flags"] = shown["flags"]
+    for column, unit in (("tool_drop", "m"), ("tcp_max_displacement", "m")):
+        if column in shown:
+            frame[f"{column} [{unit}]"] = _numbers(shown, column)
+    frame["what broke"] = [messages.get(str(c), "see cases/<case>.json") for c in frame["case"]]
+    parts.append(_html_table(frame, "flagged"))
+    if len(flagged) > MAX_FLAGGED_LISTED:
+        parts.append(
+            f"<p class='note'>{len(flagged) - MAX_FLAGGED_LISTED} more flagged cases are in "
+            "results.csv (column flags).</p>"
+        )
+    parts.append("</section>")
+    return "\n".join(parts)
+
+
 def _section_assumptions(summary: Mapping[str, Any]) -> str:
     assumptions = summary.get("assumptions") or []
     items = "".join(f"<li>{_esc(a)}</li>" for a in assumptions)
@@ -667,19 +812,63 @@ def _section_definitions(summary: Mapping[str, Any], table: pd.DataFrame) -> str
         for column in map(str, table.columns)
     ]
     frame = pd.DataFrame(rows, columns=["column", "unit", "definition"])
+    chain = _mapping(summary.get("stopping_chain"))
     return (
         "<section id='definitions'>\n<h2>Definitions</h2>\n<dl>\n"
-        "<dt>T — stopping time (column stop_time) [s]</dt>\n"
-        f"<dd>{_esc(_definition(summary, 'stop_time'))} ISO 13855 uses it in the minimum "
-        "separation distance S = K·T + C. Per joint: stop_time.&lt;joint&gt;.</dd>\n"
-        "<dt>S_s — stopping distance (columns tcp_distance [m] and stop_angle [rad])</dt>\n"
-        "<dd>The distance the robot travels from the stop signal until it is at rest, as "
-        "ISO/TS 15066 speed and separation monitoring uses it. "
-        f"tcp_distance [m]: {_esc(_definition(summary, 'tcp_distance'))} "
+        "<dt>T_robot — the robot's own stopping time (column robot_stop_time) [s]</dt>\n"
+        f"<dd>{_esc(_definition(summary, 'robot_stop_time'))} Per joint: "
+        "stop_time.&lt;joint&gt;.</dd>\n"
+        "<dt>T — ISO 13855:2024's overall stopping performance (column overall_stop_time) "
+        "[s]</dt>\n"
+        "<dd>T = t_detection + t_response + t_latency + T_robot: the protective device's "
+        "detection time, the safety controller's response time and the signal's latency to the "
+        "robot, then the robot's own stop. "
+        + (
+            f"This study: {_esc(_chain_text(chain))}"
+            if chain.get("safeguard")
+            else "This study gives no safeguard times (scenario key safeguard), so T is not "
+            "computed: T_robot alone is NOT T and must not be used as it."
+        )
+        + "</dd>\n"
+        "<dt>S — ISO 13855:2024's minimum distance (column iso13855_distance) [m]</dt>\n"
+        "<dd>S = K·T + D_DS + Z, with K, D_DS and Z from the scenario's separation.iso13855 "
+        "(none defaulted).</dd>\n"
+        "<dt>S_p — ISO/TS 15066's protective separation distance (column ssm_distance) "
+        "[m]</dt>\n"
+        "<dd>S_p = S_h + S_r + S_s + C + Z_d + Z_r, S_h = v_h (T_r + T_s), S_r = v_r T_r, "
+        "T_r = t_detection + t_response + t_latency, T_s = T_robot, v_r = the tool's speed at "
+        "the signal, v_h = 1.6 m/s unless the scenario gives another.</dd>\n"
+        "<dt>S_s — stopping distance (columns tcp_max_displacement [m] and stop_angle [rad])"
+        "</dt>\n<dd>The distance the robot travels while it stops, as ISO/TS 15066 uses it: "
+        f"{_esc(_definition(summary, 'tcp_max_displacement'))} "
         "stop_angle [rad], the stopping distance of ISO 10218-1 Annex B: "
-        f"{_esc(_definition(summary, 'stop_angle'))}</dd>\n</dl>\n"
-        "<h3>Columns of the results table</h3>\n" + _html_table(frame, "columns") + "\n</section>"
+        f"{_esc(_definition(summary, 'stop_angle'))}</dd>\n"
+        + _bounds_definition(summary)
+        + "</dl>\n<h3>Columns of the results table</h3>\n"
+        + _html_table(frame, "columns")
+        + "\n</section>"
     )
+
+
+def _chain_text(chain: Mapping[str, Any]) -> str:
+    guard = _mapping(chain.get("safeguard"))
+    return (
+        f"t_detection {format_value(guard.get('detection_time'))} s, t_response "
+        f"{format_value(guard.get('response_time'))} s, t_latency "
+        f"{format_value(guard.get('latency'))} s."
+    )
+
+
+def _bounds_definition(summary: Mapping[str, Any]) -> str:
+    """How the ``_upper`` bounds were made, if the study has them."""
+    bounds = _mapping(summary.get("bounds"))
+    if not bounds:
+        return (
+            "<dt>Bounds</dt>\n<dd>None asked for (scenario key bounds): every figure is the "
+            "nominal model's, with no allowance for the calibration's uncertainty or brake "
+            "wear.</dd>\n"
+        )
+    return f"<dt>&lt;figure&gt;_upper — bounds</dt>\n<dd>{_esc(bounds.get('text', ''))}</dd>\n"
 
 
 def _section_versions(summary: Mapping[str, Any]) -> str:
@@ -714,7 +903,11 @@ def _html_table(frame: pd.DataFrame, table_id: str) -> str:
 
 
 def _is_result(column: str) -> bool:
-    return column in RESULT_COLUMNS or column.startswith(("stop_time.", "stop_angle."))
+    return (
+        column in RESULT_COLUMNS
+        or column.startswith(("stop_time.", "stop_angle."))
+        or column.endswith("_upper")
+    )
 
 
 def _status(table: pd.DataFrame) -> pd.Series:
@@ -773,8 +966,12 @@ def _distribution_row(row: dict[str, Any], group: pd.DataFrame) -> dict[str, Any
         "ok": int((status == "ok").sum()),
         "not_stopped": int((status == "not_stopped").sum()),
         "error": int(status.str.startswith("error").sum()),
+        **_flag_counts(group),
     }
     for name, unit in QUANTITIES:
+        if f"{name}_upper" in ok.columns:
+            upper = np.abs(_numbers(ok, f"{name}_upper").dropna().to_numpy(float))
+            row[f"{name}_upper max [{unit}]"] = float(np.max(upper)) if upper.size else math.nan
         values = _numbers(ok, name).dropna().to_numpy(float)
         if name == "stop_angle":
             values = np.abs(values)
@@ -842,9 +1039,26 @@ def _counts(summary: Mapping[str, Any], table: pd.DataFrame) -> dict[str, Any]:
         "ok": int((status == "ok").sum()),
         "not_stopped": int((status == "not_stopped").sum()),
         "error": int(status.str.startswith("error").sum()),
+        **_flag_counts(table),
     }
     given = _mapping(summary.get("counts"))
     return {key: given.get(key, value) for key, value in counted.items()}
+
+
+def _flag_counts(table: pd.DataFrame) -> dict[str, int]:
+    """Cases whose brakes cannot hold the load (``cannot_hold``), and all flagged cases."""
+    flags = _flag_texts(table)
+    return {
+        "cannot_hold": int(flags.str.contains("brake_cannot_hold").sum()),
+        "flagged": int((flags != "").sum()),
+    }
+
+
+def _flag_texts(table: pd.DataFrame) -> pd.Series:
+    """The ``flags`` column as text ("" for none, also where a CSV reader made it NaN)."""
+    if "flags" not in table:
+        return pd.Series([""] * len(table), index=table.index, dtype=object)
+    return table["flags"].map(lambda value: value if isinstance(value, str) else "")
 
 
 def _split_status(status: str) -> tuple[str, str]:

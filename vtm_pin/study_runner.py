@@ -33,6 +33,7 @@ import sys
 import tempfile
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -42,7 +43,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .batch import ENGINES, PARTS
-from .exceptions import OutputError, StudyError, VtmError
+from .exceptions import OutputError, StudyError, VtmError, VtmWarning
+from .figures import DEFINITIONS as FIGURE_DEFINITIONS
+from .figures import METRICS
 from .robot import RobotCache
 from .staging import write_staged
 from .study import Case, Study
@@ -50,7 +53,6 @@ from .study import Case, Study
 if TYPE_CHECKING:
     import pandas as pd
 
-    from .stopping import StoppingReport
 
 #: Files of a study's output folder.
 CASES_FOLDER, STATE_FILE = "cases", "study.json"
@@ -58,37 +60,21 @@ CASES_FOLDER, STATE_FILE = "cases", "study.json"
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 #: Modules the pool's fork server imports once, before it forks the workers.
 PRELOAD = ["vtm_pin.study_runner", "vtm_pin.pipeline", "vtm_pin.annex_b", "example_robot_data"]
-#: Metrics of a case, in table order, with their units.
-METRICS = {
-    "stop_time": "s",
-    "test_stop_time": "s",
-    "stop_angle": "rad",
-    "tcp_distance": "m",
-    "tcp_path": "m",
-    "peak_tcp_speed": "m/s",
-    "test_speed": "rad/s",
-    "test_reach": "m",
-}
-#: What each column of the results table means (summary.json and report.html quote these).
+#: Most flagged cases whose messages summary.json lists (the table flags every case).
+MAX_FLAGGED_SUMMARY = 100
+#: What each column of the results table means besides the figures of
+#: :data:`vtm_pin.figures.DEFINITIONS` (summary.json and report.html quote these).
 DEFINITIONS = {
     "case": "Stable id of the case: a hash of its axis values (and of its index in sampled "
     "studies).",
     "status": "ok: every joint came to rest; not_stopped: some joint was still moving at the "
     "end of the run (lengthen duration); error: <message>: the case failed.",
-    "stop_time": "T [s], the overall stopping time of ISO 13855 (S = K T + C): from the stop "
-    "signal until every joint's speed stays below stop.rest_speed.",
-    "test_stop_time": "Stopping time of the tested joint alone [s], as makers publish it (T waits "
-    "for every joint; another joint pushed by the stop, or falling until its own brake engages, "
-    "can make T longer).",
-    "stop_angle": "Stopping distance of the tested joint [rad], |q(end) - q(signal)|; the joint "
-    "with the largest travel when the case has no annex_b joint.",
-    "tcp_distance": "S_s [m], the stopping distance of ISO/TS 15066 speed and separation "
-    "monitoring: straight-line distance of the tool frame from the signal to rest.",
-    "tcp_path": "Length of the tool frame's path from the signal to rest [m] (at least "
-    "tcp_distance).",
-    "peak_tcp_speed": "Largest tool-frame speed after the signal [m/s].",
-    "test_speed": "The tested joint's rate at the signal [rad/s] (annex_b cases).",
-    "test_reach": "Horizontal reach of the tool frame at the signal [m] (annex_b cases).",
+    "holds": "true: every brake's static torque holds its joint's gravity load throughout the "
+    "stop; false: some brake cannot (the arm collapses: see flags).",
+    "flags": "Broken assumptions behind the case's figures (brake_cannot_hold, joint_slips, "
+    "not_stopped, payload_above_rated, payload_implausible, tool_speed_implausible), ; "
+    "separated; each case record (cases/<case>.json) has the messages.",
+    **FIGURE_DEFINITIONS,
     "stop_time.<joint>": "That joint's stopping time [s].",
     "stop_angle.<joint>": "That joint's travel after the signal, |q(end) - q(signal)| [rad].",
     "wall_time": "Time this case took to build, simulate and report [s].",
@@ -231,6 +217,7 @@ def _valid_base(base: Mapping[str, Any]) -> Mapping[str, Any] | None:
 
 def _record_result(record: dict[str, Any], scenario: Any, result: Any) -> None:
     """Fill a case's record from its simulation (or the error that ended it)."""
+    from .figures import describe_flags, stop_figures
     from .scenario import scenario_failure
     from .stopping import compute_stopping_report
 
@@ -243,8 +230,14 @@ def _record_result(record: dict[str, Any], scenario: Any, result: Any) -> None:
         report = compute_stopping_report(
             scenario.robot, result, scenario.brakes, scenario.tool_frame
         )
-        status, metrics = case_metrics(scenario, report)
-        record.update(status=status, metrics=metrics)
+        figures = stop_figures(scenario, result, report)
+        record.update(
+            status=figures.status,
+            metrics=dict(figures.metrics),
+            holds=figures.holds,
+            flags=describe_flags(figures.flags),
+            chain={k: v for k, v in figures.chain.items() if k in ("safeguard", "definition")},
+        )
         record["assumptions"] = list(scenario.robot.assumptions) + list(scenario.assumptions)
         record["tool_frame"] = scenario.tool_frame
         record["timing"]["simulate"] = float(result.wall_time)
@@ -261,37 +254,6 @@ def _record_error(record: dict[str, Any], exc: Exception) -> None:
     else:  # a bug: recorded like a failure, so the study goes on
         message = f"internal error ({type(exc).__name__}: {exc})"
     record.update(status=f"error: {_one_line(message)}", metrics={})
-
-
-def case_metrics(scenario: Any, report: StoppingReport) -> tuple[str, dict[str, float | None]]:
-    """A run's status (``ok`` / ``not_stopped``) and metrics (see :data:`DEFINITIONS`).
-
-    Args:
-        scenario: The case's scenario.
-        report: The stopping report of its run.
-    """
-    joints = [j.joint for j in report.joints]
-    angles = [abs(j.stop_angle) for j in report.joints]
-    state = scenario.test_state
-    tested = (
-        state.joint_index if state is not None else max(range(len(angles)), key=angles.__getitem__)
-    )
-    metrics: dict[str, float | None] = {
-        "stop_time": report.all_stopped_time,
-        "test_stop_time": report.joints[tested].stop_time,
-        "stop_angle": angles[tested],
-        "tcp_distance": report.tcp_distance,
-        "tcp_path": report.tcp_path_length,
-        "peak_tcp_speed": report.tcp_peak_speed,
-        "test_speed": abs(state.speed) if state is not None else None,
-        "test_reach": state.reach if state is not None else None,
-    }
-    for name, joint in zip(joints, report.joints, strict=True):
-        metrics[f"stop_time.{name}"] = joint.stop_time
-    for name, angle in zip(joints, angles, strict=True):
-        metrics[f"stop_angle.{name}"] = angle
-    clean = {k: (v if v is not None and math.isfinite(v) else None) for k, v in metrics.items()}
-    return ("ok" if not report.moving else "not_stopped"), clean
 
 
 def _one_line(text: str) -> str:
@@ -459,7 +421,27 @@ def run_study(
     begin_outputs = time.perf_counter()
     output = _finish(study, out, records, f"{executor}, {engine} engine", len(tasks))
     phases = {"cases": begin_outputs - begin_cases, "outputs": time.perf_counter() - begin_outputs}
+    _warn_flagged(records, out)
     return dataclasses.replace(output, phases=phases)
+
+
+def _warn_flagged(records: Sequence[Mapping[str, Any]], out: Path) -> None:
+    """One warning line if some cases' figures rest on broken assumptions (flags)."""
+    kinds: dict[str, int] = {}
+    flagged = 0
+    for record in records:
+        if record.get("flags"):
+            flagged += 1
+            for flag in record["flags"]:
+                kinds[flag["kind"]] = kinds.get(flag["kind"], 0) + 1
+    if flagged:
+        counts = ", ".join(f"{n} {kind}" for kind, n in kinds.items())
+        warnings.warn(
+            f"{flagged} of {len(records)} cases are flagged ({counts}): their figures rest on "
+            f"broken assumptions; see {out / 'report.html'}, section Flagged cases",
+            VtmWarning,
+            stacklevel=3,
+        )
 
 
 def _refuse_all_failed(study: Study, records: Sequence[Mapping[str, Any]]) -> None:
@@ -666,16 +648,20 @@ def results_table(study: Study, records: Sequence[Mapping[str, Any]]) -> pd.Data
     for record in records:
         values = {k: ("none" if v is None else v) for k, v in record["values"].items()}
         metrics = record["metrics"]
+        ran = "holds" in record
         rows.append(
             {
                 "case": record["case"],
                 **values,
                 "status": record["status"],
+                "holds": bool(record["holds"]) if ran else None,
+                "flags": ";".join(f["kind"] for f in record.get("flags", [])),
                 **{c: _float(metrics.get(c)) for c in columns},
                 "wall_time": record["wall_time"],
             }
         )
-    table = pd.DataFrame(rows, columns=["case", *study.axes, "status", *columns, "wall_time"])
+    head = ["case", *study.axes, "status", "holds", "flags"]
+    table = pd.DataFrame(rows, columns=[*head, *columns, "wall_time"])
     for name in study.axes:  # one type per column, as parquet needs
         kinds = {type(v) for v in table[name]}
         if len(kinds) > 1 and not kinds <= {int, float}:
@@ -697,6 +683,8 @@ def build_study_summary(
         "ok": statuses.count("ok"),
         "not_stopped": statuses.count("not_stopped"),
         "error": sum(s.startswith("error") for s in statuses),
+        "cannot_hold": sum(r.get("holds") is False for r in records),
+        "flagged": sum(bool(r.get("flags")) for r in records),
     }
     timing = [r["timing"] for r in records if "timing" in r]
     split = {
@@ -705,6 +693,8 @@ def build_study_summary(
         else None
         for part in ("build", "simulate", "report", "write")
     }
+    flagged = [r for r in records if r.get("flags")]
+    chains = [r["chain"] for r in records if r.get("chain")]
     return {
         "study": {
             "name": study.name,
@@ -729,6 +719,10 @@ def build_study_summary(
         "units": {**METRICS, "wall_time": "s"},
         "timing_median": split,
         "wall_time_total": sum(float(r["wall_time"]) for r in records),
+        "stopping_chain": chains[0] if chains else {},
+        "flagged": [
+            {"case": r["case"], "flags": r["flags"]} for r in flagged[:MAX_FLAGGED_SUMMARY]
+        ],
     }
 
 
