@@ -108,8 +108,14 @@ def test_braking_laws_that_decelerate_hardest_at_the_start_agree(law: str) -> No
         for j in ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
     } | {j: {"ideal": True} for j in ("wrist_1_joint", "wrist_2_joint", "wrist_3_joint")}
     if law in ("short_circuit", "both"):
-        for drive in raw["drives"].values():
-            drive.update(short_circuit_torque=0.4, short_circuit_speed=150.0)
+        raw["drives"] = {
+            j: {"gear_ratio": 101, "rotor_inertia": 1e-4 if i < 3 else 3e-5}
+            | {"short_circuit_torque": 0.4, "short_circuit_speed": 150.0}
+            for i, j in enumerate(
+                ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
+                + ("wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
+            )
+        }
     if law in ("viscous", "both"):
         for j in ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"):
             raw["brakes"][j].update(friction="viscous", viscous_velocity=200.0)
@@ -192,6 +198,7 @@ def test_ideal_brakes_and_samples_at_the_steps_agree() -> None:
     events, the final state and the work are compared, not sample by sample.
     """
     raw = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
+    raw["brakes"] = {}  # the robot data's, but for the wrists
     for name in ("wrist_1_joint", "wrist_2_joint", "wrist_3_joint"):
         raw["brakes"][name] = {"delay": 0.02, "ideal": True}
     raw["integrator"].pop("output_dt")
@@ -206,7 +213,9 @@ def test_ideal_brakes_and_samples_at_the_steps_agree() -> None:
 def test_stribeck_brakes_fall_back() -> None:
     """A Stribeck brake (a Coulomb subclass) is not batched as if it were Coulomb."""
     raw = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
-    raw["brakes"]["elbow_joint"].update(friction="stribeck", stribeck_velocity=10.0)
+    raw["brakes"] = {
+        "elbow_joint": {"sliding_torque": 1.8, "friction": "stribeck", "stribeck_velocity": 10.0}
+    }
     scenario = vp.build_scenario(raw, source="test", base_dir=SCENARIOS_DIR, name="stribeck")
     reason = fallback_reason(scenario.problem, scenario.integrator)
     assert reason is not None and "stribeck" in reason

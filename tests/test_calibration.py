@@ -222,8 +222,20 @@ def test_every_figure_builds_valid_row_scenarios(synthetic: Path, name: str) -> 
     """Each --fit figure has a prior and a start, and its rows are valid scenarios."""
     table = read_stopping_table(synthetic)
     robot = load_robot(ROBOT)
-    figures = make_figures([name], table.joints, robot.joints, table.joints)
+    fit = [name]
+    if name.startswith("short_circuit"):  # the torque and the speed of its peak go together
+        suffix = name.partition(":")[1] + name.partition(":")[2]
+        fit = [f"short_circuit{suffix}", f"short_circuit_speed{suffix}"]
+    figures = make_figures(fit, table.joints, robot.joints, table.joints)
     prior = priors(robot)
     values = {f.name: _start(f, prior) for f in figures}
     for row in table.rows:
         build_scenario(row_scenario(row, ROBOT, values, figures, prior), source="row")
+
+
+def test_short_circuit_figures_go_together(synthetic: Path) -> None:
+    table = read_stopping_table(synthetic)
+    with pytest.raises(CalibrationError, match="short_circuit_speed is the speed"):
+        make_figures(["short_circuit_speed"], table.joints, load_robot(ROBOT).joints)
+    with pytest.raises(CalibrationError, match="needs the speed of the short-circuit"):
+        calibrate(table, ROBOT, ["short_circuit"])

@@ -23,20 +23,26 @@ The figures (``--fit``): ``delay`` (one brake delay for every joint [s]), ``dela
 per tested joint), ``sliding`` (each tested joint's brake sliding torque, motor side [N m]),
 ``sliding:shared`` (one for all tested joints), ``static`` / ``static:shared`` (static torque;
 otherwise it stays ``STATIC_RATIO`` x the sliding torque), ``rotor_inertia`` /
-``rotor_inertia:shared`` (motor side [kg m^2]), ``ramp`` (one brake force rise time [s]).
-Joints the table does not test keep their prior figures, which are stated as assumptions.
+``rotor_inertia:shared`` (motor side [kg m^2]), ``ramp`` (one brake force rise time [s]), and
+the laws that decelerate hardest at the start: ``viscous`` / ``viscous:shared`` (the viscous
+brake law's w_v, motor side [rad/s]: the brake torque grows with the slip speed),
+``short_circuit`` / ``short_circuit:shared`` (the peak torque of the motors' short-circuit
+braking, motor side [N m]) with ``short_circuit_speed`` / ``short_circuit_speed:shared`` (the
+motor speed of that peak [rad/s]). Joints the table does not test keep their prior figures,
+which are stated as assumptions.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from .exceptions import VtmError
+from .exceptions import VtmError, VtmWarning
 from .robot import Robot, RobotCache, load_robot
 from .stopping_table import StoppingRow, StoppingTable, check_joints
 
@@ -51,7 +57,18 @@ FIGURES: dict[str, tuple[str, str, bool, bool]] = {
     "rotor_inertia": ("rotor_inertia", "kg m^2", False, True),
     "rotor_inertia:shared": ("rotor_inertia", "kg m^2", True, True),
     "ramp": ("ramp", "s", True, False),
+    "viscous": ("viscous_velocity", "rad/s", False, True),
+    "viscous:shared": ("viscous_velocity", "rad/s", True, True),
+    "short_circuit": ("short_circuit_torque", "N m", False, True),
+    "short_circuit:shared": ("short_circuit_torque", "N m", True, True),
+    "short_circuit_speed": ("short_circuit_speed", "rad/s", False, True),
+    "short_circuit_speed:shared": ("short_circuit_speed", "rad/s", True, True),
 }
+#: Scenario keys that live in a joint's drive (the others in its brake).
+DRIVE_KEYS = ("gear_ratio", "rotor_inertia", "short_circuit_torque", "short_circuit_speed")
+#: Start of the search of a law's figures, in units of the table's fastest motor speed (the
+#: speeds) and of the joint's prior sliding torque (the short-circuit torque) [-].
+START_SPEED_FRACTION, START_SHORT_CIRCUIT_FRACTION = 1.0, 0.3
 DEFAULT_FIT = ("delay", "sliding")
 #: Prior brake figures: delay [s], sliding torque as a fraction of the joint's effort limit
 #: (joint side, then divided by the gear ratio: motor side; a brake as strong as the drive, so
@@ -77,6 +94,9 @@ MIN_DELAY = 1.0e-3
 #: Range searched for torques [N m] and rotor inertias [kg m^2]: the scenario's own limits
 #: (1e6 N m, 100 kg m^2) with a margin, so that no trial step is refused by the schema.
 MIN_POSITIVE, MAX_TORQUE_FIGURE, MAX_INERTIA_FIGURE = 1.0e-9, 1.0e5, 10.0
+#: Range searched for the laws' speeds, motor side [rad/s]: from 0.1 rad/s (a law that
+#: saturates at once) to the schema's limit (where it is Coulomb's again).
+MIN_SPEED_FIGURE, MAX_SPEED_FIGURE = 1.0e-1, 1.0e5
 #: Integrator of the row scenarios: adaptive, tight enough that finite differences of the
 #: stopping figures (steps of 1e-3 relative) are not noise.
 INTEGRATOR = {"method": "dop853", "rtol": 1.0e-10, "atol": 1.0e-12, "output_dt": 1.0e-3}
@@ -119,12 +139,15 @@ class RowFit:
         time: Simulated stopping time of the tested joint [s] (the run's end if it did not
             stop).
         stopped: Whether the tested joint came to rest.
+        flags: The kinds of the run's flags (:mod:`vtm_pin.flags`): a brake that cannot hold
+            or stop the load at the row's own test pose makes the fitted figures implausible.
     """
 
     row: StoppingRow
     distance: float
     time: float
     stopped: bool
+    flags: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -149,6 +172,9 @@ class Calibration:
         message: least_squares' message.
         priors: Brake (and drive) figures of every joint used where not fitted.
         scatter: Relative scatter (distance, time) the residuals were weighted with.
+        covariance: Covariance of the figures (SI, square units), from (J^T J)^-1 of the
+            weighted residuals; rows and columns of figures held at a bound are 0 (fixed),
+            of undetermined ones infinite on the diagonal.
     """
 
     robot: str
@@ -167,6 +193,7 @@ class Calibration:
     message: str
     priors: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     scatter: tuple[float, float] = (DISTANCE_SCATTER, TIME_SCATTER)
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 def priors(robot: Robot) -> dict[str, dict[str, Any]]:
@@ -183,6 +210,7 @@ def priors(robot: Robot) -> dict[str, dict[str, Any]]:
         effort = float(model.effortLimit[i])
         sliding = PRIOR_EFFORT_FRACTION * effort / ratio if 0.0 < effort < math.inf else 1.0
         rotor = float(model.rotorInertia[i])
+        drive = robot.drives.get(joint)
         out[joint] = {
             "delay": PRIOR_DELAY,
             "sliding_torque": sliding,
@@ -190,6 +218,8 @@ def priors(robot: Robot) -> dict[str, dict[str, Any]]:
             "ramp": 0.0,
             "gear_ratio": ratio,
             "rotor_inertia": rotor,
+            "short_circuit_torque": 0.0 if drive is None else drive.short_circuit_torque,
+            "short_circuit_speed": 0.0 if drive is None else drive.short_circuit_speed,
         }
     return out
 
@@ -222,6 +252,13 @@ def make_figures(
             raise CalibrationError(f"--fit: {key} is named twice ('{name}')")
         keys.add(key)
         base = name.split(":")[0]
+        if key == "short_circuit_speed" and not any(
+            n.split(":")[0] == "short_circuit" for n in fit
+        ):
+            raise CalibrationError(
+                f"--fit: {name} is the speed of the short-circuit braking's peak: fit it with "
+                "short_circuit (its torque), or not at all"
+            )
         if is_shared:
             covered = (joints if key in ("delay", "ramp") else shared) or tested
             figures.append(Figure(base, key, tuple(covered), unit, positive))
@@ -273,7 +310,8 @@ def drives_and_brakes(
         for joint in figure.joints:
             spec[joint][figure.key] = values[figure.name]
     static_fitted = any(f.key == "static_torque" for f in figures)
-    drives, brakes = {}, {}
+    drives: dict[str, dict[str, Any]] = {}
+    brakes: dict[str, dict[str, Any]] = {}
     for joint, s in spec.items():
         static = s["static_torque"] if static_fitted else STATIC_RATIO * s["sliding_torque"]
         brakes[joint] = {
@@ -282,7 +320,14 @@ def drives_and_brakes(
             "static_torque": max(static, s["sliding_torque"]),
             "ramp": s["ramp"],
         }
+        if "viscous_velocity" in s:
+            brakes[joint] |= {"friction": "viscous", "viscous_velocity": s["viscous_velocity"]}
         drives[joint] = {"gear_ratio": s["gear_ratio"], "rotor_inertia": s["rotor_inertia"]}
+        if s["short_circuit_torque"] > 0.0:
+            drives[joint] |= {
+                "short_circuit_torque": s["short_circuit_torque"],
+                "short_circuit_speed": s["short_circuit_speed"],
+            }
     return drives, brakes
 
 
@@ -312,7 +357,9 @@ def simulate_row(
         )
     try:
         scenario = build_scenario(raw, source=f"row {row.line}", name="row", loader=loader)
-        output = run(scenario)
+        with warnings.catch_warnings():  # a trial's flags are not the user's: the fit goes on
+            warnings.simplefilter("ignore", VtmWarning)
+            output = run(scenario)
     except VtmError as exc:
         raise CalibrationError(str(exc)) from exc
     state = scenario.test_state
@@ -326,7 +373,8 @@ def simulate_row(
     stopped = joint.stopped
     time = joint.stop_time if stopped else float(output.result.t[-1])
     q = output.result.q[:, state.joint_index]
-    return RowFit(row, float(np.max(np.abs(q - q[0]))), time, stopped)
+    kinds = tuple(f.kind for f in output.figures.flags) if output.figures is not None else ()
+    return RowFit(row, float(np.max(np.abs(q - q[0]))), time, stopped, kinds)
 
 
 def residuals(fits: Sequence[RowFit], scatter: tuple[float, float]) -> np.ndarray:
@@ -371,7 +419,9 @@ def calibrate(
     tested = list(dict.fromkeys(row.joint for row in used))
     figures = make_figures(fit, tested, robot.joints, table.joints)
     prior = priors(robot)
-    x0 = np.array([_to_x(f, _start(f, prior)) for f in figures])
+    _check_short_circuit(figures, prior)
+    motor = max(row.speed * float(robot.gear_ratio[robot.joint_index(row.joint)]) for row in used)
+    x0 = np.array([_to_x(f, _start(f, prior, motor)) for f in figures])
     lower = np.array([_lower(f) for f in figures])
     upper = np.array([_upper(f) for f in figures])
     cache = RobotCache()
@@ -402,7 +452,7 @@ def calibrate(
     )
     J = solution.jac / scale
     active = solution.active_mask != 0  # figures held at a bound of their search
-    sigma, determined, rank, singular = _uncertainty(J, active)
+    sigma, determined, rank, singular, covariance = _uncertainty(J, active)
     return Calibration(
         robot=robot_name,
         fit=tuple(fit),
@@ -420,13 +470,42 @@ def calibrate(
         message=str(solution.message),
         priors=prior,
         scatter=scatter,
+        covariance=covariance,
     )
+
+
+#: Search range of the positive figures by key (log scale), the others' in s.
+_RANGES = {
+    "rotor_inertia": (MIN_POSITIVE, MAX_INERTIA_FIGURE),
+    "viscous_velocity": (MIN_SPEED_FIGURE, MAX_SPEED_FIGURE),
+    "short_circuit_speed": (MIN_SPEED_FIGURE, MAX_SPEED_FIGURE),
+}
+
+
+def _check_short_circuit(figures: Sequence[Figure], prior: Mapping[str, Mapping[str, Any]]) -> None:
+    """A fitted short-circuit torque needs the speed of its peak: fitted, or in the robot data.
+
+    Raises:
+        CalibrationError: A joint whose short-circuit torque is fitted has no such speed.
+    """
+    speeds = {j for f in figures if f.key == "short_circuit_speed" for j in f.joints}
+    for figure in figures:
+        if figure.key != "short_circuit_torque":
+            continue
+        missing = [
+            j for j in figure.joints if j not in speeds and not prior[j]["short_circuit_speed"] > 0
+        ]
+        if missing:
+            raise CalibrationError(
+                f"--fit: {figure.name} needs the speed of the short-circuit braking's peak: fit "
+                f"short_circuit_speed too (the robot data give none for {', '.join(missing)})"
+            )
 
 
 def _lower(figure: Figure) -> float:
     """The lower bound of a figure's search variable (log scale for torques and inertias)."""
     if figure.positive:
-        return math.log(MIN_POSITIVE)
+        return math.log(_RANGES.get(figure.key, (MIN_POSITIVE, MAX_TORQUE_FIGURE))[0])
     return MIN_DELAY if figure.key == "delay" else 0.0
 
 
@@ -434,14 +513,26 @@ def _upper(figure: Figure) -> float:
     """The upper bound of a figure's search variable (log scale for torques and inertias)."""
     if not figure.positive:
         return MAX_TIME_FIGURE
-    return math.log(MAX_INERTIA_FIGURE if figure.key == "rotor_inertia" else MAX_TORQUE_FIGURE)
+    return math.log(_RANGES.get(figure.key, (MIN_POSITIVE, MAX_TORQUE_FIGURE))[1])
 
 
-def _start(figure: Figure, prior: Mapping[str, Mapping[str, Any]]) -> float:
-    """The start of a figure's search: its prior (a rotor inertia of 0 starts at 1e-4)."""
-    value = float(prior[figure.joints[0]][figure.key])
+def _start(
+    figure: Figure, prior: Mapping[str, Mapping[str, Any]], motor_speed: float = 100.0
+) -> float:
+    """The start of a figure's search: its prior (a rotor inertia of 0 starts at 1e-4).
+
+    A law's figure without a prior starts from the table: its speeds at the fastest motor
+    speed of the rows (``motor_speed`` [rad/s]), the short-circuit torque at
+    :data:`START_SHORT_CIRCUIT_FRACTION` of the joint's prior sliding torque.
+    """
+    joint = prior[figure.joints[0]]
+    value = float(joint.get(figure.key) or 0.0)
     if figure.key == "rotor_inertia" and value <= 0.0:
         return PRIOR_ROTOR_INERTIA
+    if figure.key in ("viscous_velocity", "short_circuit_speed") and value <= 0.0:
+        return START_SPEED_FRACTION * motor_speed
+    if figure.key == "short_circuit_torque" and value <= 0.0:
+        return START_SHORT_CIRCUIT_FRACTION * float(joint["sliding_torque"])
     return value
 
 
@@ -507,26 +598,37 @@ def _from_x(figure: Figure, x: float) -> float:
 
 def _uncertainty(
     J: np.ndarray, active: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
-    """1-sigma uncertainties, which figures are determined, the rank and singular values.
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
+    """1-sigma uncertainties, whether determined, the rank, singular values and covariance.
 
     The rank is read off the Jacobian with unit-norm columns (so that seconds and N m
     compare); a figure is undetermined when it has a component above 0.1 in a direction of
     the null space. A figure held at a bound (``active``) is the fit's answer but has no
-    curvature there: it gets no uncertainty (NaN), and the others' are those with it fixed.
+    curvature there: it gets no reported uncertainty (NaN), and the others' are those with it
+    fixed. The covariance, which bounds propagate, is that of every figure from the whole
+    Jacobian (a bound held by noisy data must not make its figure certain); where that
+    leaves a figure undetermined, the free figures' covariance with it fixed (its row and
+    column 0). An undetermined figure's variance is inf.
     """
-    sigma, determined, rank, s = _free_uncertainty(J[:, ~active])
-    out_sigma = np.full(J.shape[1], np.nan)
+    sigma, determined, rank, s, free_cov = _free_uncertainty(J[:, ~active])
+    n = J.shape[1]
+    out_sigma = np.full(n, np.nan)
     out_sigma[~active] = sigma
-    out_determined = np.ones(J.shape[1], dtype=bool)
+    out_determined = np.ones(n, dtype=bool)
     out_determined[~active] = determined
-    return out_sigma, out_determined, rank + int(np.count_nonzero(active)), s
+    _, all_determined, _, _, covariance = _free_uncertainty(J)
+    if active.any() and not np.all(all_determined[active]):
+        covariance = np.zeros((n, n))
+        covariance[np.ix_(~active, ~active)] = free_cov
+    return out_sigma, out_determined, rank + int(np.count_nonzero(active)), s, covariance
 
 
-def _free_uncertainty(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+def _free_uncertainty(
+    J: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
     """:func:`_uncertainty` of the figures free of their bounds."""
     if J.shape[1] == 0:
-        return np.zeros(0), np.zeros(0, dtype=bool), 0, np.zeros(0)
+        return np.zeros(0), np.zeros(0, dtype=bool), 0, np.zeros(0), np.zeros((0, 0))
     norms = np.linalg.norm(J, axis=0)
     norms[norms == 0.0] = 1.0
     scaled = J / norms
@@ -541,4 +643,5 @@ def _free_uncertainty(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.nd
     covariance = np.linalg.pinv(scaled.T @ scaled, rcond=RANK_RTOL**2) / np.outer(norms, norms)
     sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     sigma[~determined] = np.inf
-    return sigma, determined, rank, s
+    covariance[np.diag_indices_from(covariance)] = np.where(determined, np.diag(covariance), np.inf)
+    return sigma, determined, rank, s, covariance

@@ -13,7 +13,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from .calibration import (
+    DRIVE_KEYS,
     PRIOR_DELAY,
     PRIOR_EFFORT_FRACTION,
     STATIC_RATIO,
@@ -22,6 +25,8 @@ from .calibration import (
     RowFit,
     drives_and_brakes,
 )
+from .calibration import Figure as FittedFigure
+from .comparison import Comparison, describe_comparison, warning_line
 from .staging import write_staged
 from .stopping_table import StoppingTable
 
@@ -33,10 +38,14 @@ if TYPE_CHECKING:
 
 
 def calibration_summary(
-    calibration: Calibration, table: StoppingTable, checks: Sequence[LeftOut] = ()
+    calibration: Calibration,
+    table: StoppingTable,
+    checks: Sequence[LeftOut] = (),
+    comparison: Comparison | None = None,
 ) -> dict[str, Any]:
     """The JSON-ready ``calibration.json`` (keys documented in the README)."""
     summary: dict[str, Any] = {
+        "class": comparison.chosen if comparison is not None else "custom",
         "robot": calibration.robot,
         "table": table.path,
         "sources": list(table.sources),
@@ -66,7 +75,13 @@ def calibration_summary(
         "message": calibration.message,
         "priors": {joint: dict(spec) for joint, spec in calibration.priors.items()},
         "units": {"stop_distance": "rad", "stop_time": "s", "uncertainty": "1 sigma, SI"},
+        "uncertainty": uncertainty_section(calibration, table),
     }
+    if comparison is not None:
+        summary["comparison"] = describe_comparison(comparison)
+        summary["none_fits"] = comparison.none_fits
+        summary["short_tolerance"] = comparison.short_tolerance
+        summary["warning"] = warning_line(comparison)
     if checks:
         summary["leave_one_out"] = [
             {
@@ -115,33 +130,116 @@ def _finite(x: float) -> float | None:
     return x if x == x and abs(x) != float("inf") else None
 
 
-def calibrated_fragment(calibration: Calibration, table: StoppingTable) -> str:
-    """The ``calibrated.yaml`` text: drives and brakes, every value marked with its origin."""
+def uncertainty_section(calibration: Calibration, table: StoppingTable) -> dict[str, Any]:
+    """The fitted figures' covariance for bounds (a fragment's ``calibration`` key).
+
+    Each determined figure with a variance is listed with its value and the scenario keys it
+    sets (a perturbation scales them all by the figure's ratio: a sliding torque moves its
+    static torque, STATIC_RATIO x it, too); the covariance of those figures (SI, square
+    units, figures held at a bound of the search included: see
+    :func:`vtm_pin.calibration.calibrate`) is inflated by chi^2 per degree of freedom when
+    that is above 1 (the scatter was stated too small). Figures with no variance are fixed;
+    undetermined ones are named: no bound can cover them. ``bias`` is the mean relative
+    residual (simulated - published) / published of the times and of the distances, and
+    ``shortfall`` the most negative one (0 if none is): bounds add the shortfall back, the
+    conservative choice.
+    """
+    names = [f.name for f in calibration.figures]
+    static_fitted = any(f.key == "static_torque" for f in calibration.figures)
+    free = [
+        i
+        for i, f in enumerate(calibration.figures)
+        if calibration.determined[f.name]
+        and np.isfinite(calibration.covariance[i, i])
+        and calibration.covariance[i, i] > 0.0
+    ]
+    chi2 = chi2_per_dof(calibration)
+    inflation = max(1.0, chi2) if chi2 is not None else 1.0
+    covariance = calibration.covariance[np.ix_(free, free)] * inflation
+    rows = calibration.rows
+    relative = {
+        "stop_time": [(r.time - r.row.stop_time) / r.row.stop_time for r in rows],
+        "stop_distance": [(r.distance - r.row.stop_distance) / r.row.stop_distance for r in rows],
+    }
+    return {
+        "source": "; ".join(table.sources),
+        "figures": [
+            {
+                "name": names[i],
+                "value": calibration.values[names[i]],
+                "unit": calibration.figures[i].unit,
+                "keys": _figure_keys(calibration.figures[i], static_fitted),
+            }
+            for i in free
+        ],
+        "covariance": covariance.tolist(),
+        "inflation": inflation,
+        "fixed": [n for k, n in enumerate(names) if k not in free and calibration.determined[n]],
+        "undetermined": [
+            n for n in names if not calibration.at_bound[n] and not calibration.determined[n]
+        ],
+        "bias": {key: float(np.mean(values)) for key, values in relative.items()},
+        "shortfall": {key: float(min(0.0, min(values))) for key, values in relative.items()},
+    }
+
+
+def _figure_keys(figure: FittedFigure, static_fitted: bool) -> list[str]:
+    """The scenario key paths a figure sets."""
+    section = "drives" if figure.key in DRIVE_KEYS else "brakes"
+    keys = [f"{section}.{joint}.{figure.key}" for joint in figure.joints]
+    if figure.key == "sliding_torque" and not static_fitted:
+        keys += [f"brakes.{joint}.static_torque" for joint in figure.joints]
+    return keys
+
+
+def calibrated_fragment(
+    calibration: Calibration, table: StoppingTable, comparison: Comparison | None = None
+) -> str:
+    """The ``calibrated.yaml`` text: drives and brakes with their origins, and the covariance."""
     source = "; ".join(table.sources)
     drives, brakes = drives_and_brakes(calibration.values, calibration.figures, calibration.priors)
+    chosen = f"model class {comparison.chosen}, " if comparison is not None else ""
     lines = [
         f"# Drives and brakes of {calibration.robot}, fitted by vtm-pin calibrate to",
         f"#   {source}",
-        f"# (table {table.path}; --fit {','.join(calibration.fit)}).",
+        f"# (table {table.path}; {chosen}--fit {','.join(calibration.fit)}).",
         "# Include it from a scenario or a study's base scenario: include: [calibrated.yaml].",
-        "# Torques and rotor inertias motor side [N m, kg m^2], delays and ramps [s].",
+        "# Torques and rotor inertias motor side [N m, kg m^2], delays and ramps [s], speeds",
+        "# motor side [rad/s]. `calibration` holds the fitted figures' covariance: a scenario",
+        "# with `bounds` turns it into upper bounds of its stopping figures.",
         "assumptions:",
     ]
-    lines += [f"  - {json.dumps(text)}" for text in _statements(calibration, source)]
+    statements = _statements(calibration, source)
+    warning = warning_line(comparison) if comparison is not None else None
+    if warning is not None:
+        statements.append(f"CALIBRATION WARNING: {warning}.")
+    lines += [f"  - {json.dumps(text)}" for text in statements]
     lines.append("drives:")
+    drive_keys = ["rotor_inertia", "short_circuit_torque", "short_circuit_speed"]
     for joint, drive in drives.items():
-        origin = _origin(calibration, joint, ["rotor_inertia"], source)
+        origin = _origin(calibration, joint, drive_keys, source)
         lines.append(f"  {joint}: {_flow(drive)}  # {origin}")
     lines.append("brakes:")
-    keys = ["delay", "sliding_torque", "static_torque", "ramp"]
+    keys = ["delay", "sliding_torque", "static_torque", "ramp", "viscous_velocity"]
     for joint, brake in brakes.items():
         lines.append(f"  {joint}: {_flow(brake)}  # {_origin(calibration, joint, keys, source)}")
+    lines.append("calibration:")
+    section = uncertainty_section(calibration, table)
+    for key, value in section.items():
+        lines.append(f"  {key}: {json.dumps(value)}")
     return "\n".join(lines) + "\n"
 
 
-def _flow(values: Mapping[str, float]) -> str:
-    """A YAML flow mapping of numbers, 6 significant digits."""
-    return "{" + ", ".join(f"{key}: {value:.6g}" for key, value in values.items()) + "}"
+def _flow(values: Mapping[str, Any]) -> str:
+    """A YAML flow mapping: numbers to 6 significant digits, words as they are."""
+    return (
+        "{"
+        + ", ".join(
+            f"{key}: {value:.6g}" if isinstance(value, float | int) else f"{key}: {value}"
+            for key, value in values.items()
+        )
+        + "}"
+    )
 
 
 def _origin(calibration: Calibration, joint: str, keys: Sequence[str], source: str) -> str:
@@ -196,18 +294,28 @@ def _statements(calibration: Calibration, source: str) -> list[str]:
     return out
 
 
-def plot_calibration(calibration: Calibration, checks: Sequence[LeftOut] = ()) -> Figure:
-    """Published against simulated stopping distance and time, every row (and left-out rows)."""
+def plot_calibration(
+    calibration: Calibration,
+    checks: Sequence[LeftOut] = (),
+    comparison: Comparison | None = None,
+) -> Figure:
+    """Published against simulated stopping distance and time, every row (and left-out rows).
+
+    With a comparison of several classes, a second row of panels shows each class's relative
+    residual (simulated - published) / published per row, against the stated scatter and the
+    short tolerance (below it: the unsafe side).
+    """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(10.0, 4.2), layout="constrained")
-    axes = fig.subplots(1, 2)
+    several = comparison is not None and len(comparison.classes) > 1
+    fig = Figure(figsize=(11.0, 8.4 if several else 4.2), layout="constrained")
+    axes = fig.subplots(2 if several else 1, 2, squeeze=False)
     labels = [f"{fit.row.joint_label or fit.row.joint}" for fit in calibration.rows]
     quantities = (
         ("stop_distance", "stopping distance [rad]", lambda f: (f.row.stop_distance, f.distance)),
         ("stop_time", "stopping time [s]", lambda f: (f.row.stop_time, f.time)),
     )
-    for ax, (_, title, get) in zip(axes, quantities, strict=True):
+    for ax, (_, title, get) in zip(axes[0], quantities, strict=True):
         published = [get(f)[0] for f in calibration.rows]
         simulated = [get(f)[1] for f in calibration.rows]
         x = range(len(labels))
@@ -223,12 +331,47 @@ def plot_calibration(calibration: Calibration, checks: Sequence[LeftOut] = ()) -
         unique = dict(zip(names, handles, strict=True))
         ax.legend(unique.values(), unique.keys(), fontsize="small")
         ax.grid(axis="y", alpha=0.3)
+    if several:
+        assert comparison is not None
+        _plot_residuals(axes[1], comparison, labels, calibration.scatter)
+    chosen = f"class {comparison.chosen}, " if comparison is not None else ""
     fig.suptitle(
-        f"{calibration.robot}: published vs simulated (fit of "
-        f"{', '.join(f.name for f in calibration.figures)}; cost {calibration.cost:.3g})",
+        f"{calibration.robot}: published vs simulated ({chosen}{len(calibration.figures)} "
+        f"figures fitted: {','.join(calibration.fit)}; cost {calibration.cost:.3g})",
         fontsize="medium",
     )
     return fig
+
+
+def _plot_residuals(
+    axes: Any, comparison: Comparison, labels: Sequence[str], scatter: tuple[float, float]
+) -> None:
+    """Each class's relative residual per row, distance (left) and time (right) [%]."""
+    width = 0.8 / len(comparison.classes)
+    for ax, what, s in zip(axes, ("distance", "time"), scatter, strict=True):
+        for k, fit in enumerate(comparison.classes):
+            rows = fit.calibration.rows
+            values = [
+                100.0 * ((r.distance - r.row.stop_distance) / r.row.stop_distance)
+                if what == "distance"
+                else 100.0 * ((r.time - r.row.stop_time) / r.row.stop_time)
+                for r in rows
+            ]
+            positions = [i - 0.4 + width * (k + 0.5) for i in range(len(rows))]
+            mark = " (chosen)" if fit.name == comparison.chosen else ""
+            ax.bar(positions, values, width=width, color=f"C{k}", label=f"{fit.name}{mark}")
+        ax.axhspan(-100.0 * s, 100.0 * s, color="0.9", zorder=0, label="stated scatter")
+        ax.axhline(
+            -100.0 * comparison.short_tolerance,
+            color="red",
+            linestyle="--",
+            label=f"short by {100 * comparison.short_tolerance:g} % (unsafe below)",
+        )
+        ax.set_xticks(range(len(labels)), labels, rotation=15)
+        ax.set_ylabel(f"{what}: simulated - published [% of published]")
+        ax.set_title(f"stopping {what} residual per model class")
+        ax.grid(axis="y", alpha=0.3)
+        ax.legend(fontsize="x-small")
 
 
 def write_calibration(
@@ -237,14 +380,16 @@ def write_calibration(
     table: StoppingTable,
     checks: Sequence[LeftOut],
     summary: Mapping[str, Any],
+    comparison: Comparison | None = None,
 ) -> list[str]:
     """Write calibration.json, calibrated.yaml and calibration.png into ``out``, all or none."""
-    figure = plot_calibration(calibration, checks)
+    figure = plot_calibration(calibration, checks, comparison)
 
     def write(staging: Path) -> None:
         text = json.dumps(summary, indent=2, allow_nan=False)
         (staging / "calibration.json").write_text(text + "\n")
-        (staging / "calibrated.yaml").write_text(calibrated_fragment(calibration, table))
+        fragment = calibrated_fragment(calibration, table, comparison)
+        (staging / "calibrated.yaml").write_text(fragment)
         figure.savefig(staging / "calibration.png", dpi=FIGURE_DPI)
 
     return write_staged(out, write)
@@ -291,6 +436,7 @@ def format_calibration(summary: Mapping[str, Any]) -> str:
         )
     if not summary["success"]:
         lines.append(f"  the fit did not converge: {summary['message']}")
+    lines += _format_comparison(summary.get("comparison", []))
     for check in summary.get("leave_one_out", []):
         for r in check["predicted"]:
             lines.append(
@@ -299,3 +445,34 @@ def format_calibration(summary: Mapping[str, Any]) -> str:
                 f"{r['stop_time_simulated']:.3f} s (published {r['stop_time_published']:.3f})"
             )
     return "\n".join(lines)
+
+
+def _format_comparison(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The model-class comparison table and its leave-one-out predictions (CLI lines)."""
+    if not rows:
+        return []
+    lines = [
+        "  model classes (simplest first; fits = within 2x scatter, chi2 p >= 0.05, unbiased, "
+        "nothing short beyond the tolerance):",
+        f"  {'class':<15} {'k':>2} {'chi2/dof':>8} {'AIC':>7} {'BIC':>7} {'t bias':>7} "
+        f"{'shortest':>8}  fits",
+    ]
+    for row in rows:
+        chi2 = row["chi2_per_dof"]
+        mark = " <- chosen" if row["chosen"] else ""
+        lines.append(
+            f"  {row['class']:<15} {row['free']:>2} {'n/a' if chi2 is None else f'{chi2:.3g}':>8} "
+            f"{row['aic']:>7.3g} {row['bic']:>7.3g} {100 * row['time_bias']['mean']:>+6.1f}% "
+            f"{100 * row['shortest']:>+7.1f}%  {'yes' if row['fits'] else 'no'}{mark}"
+        )
+        for reason in row["reasons"]:
+            lines.append(f"      {reason}")
+    for row in rows:
+        for check in row["leave_one_out"]:
+            for p in check["rows"]:
+                lines.append(
+                    f"  left out {check['joint']} ({row['class']}, shared figures): distance "
+                    f"{p['distance_predicted']:.3f} rad (published {p['distance_published']:.3f}), "
+                    f"time {p['time_predicted']:.3f} s (published {p['time_published']:.3f})"
+                )
+    return lines

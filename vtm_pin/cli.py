@@ -22,14 +22,24 @@ from tqdm import tqdm
 
 from .__main__ import forget_interrupt
 from .calibration import (
-    DEFAULT_FIT,
     DISTANCE_SCATTER,
     FIGURES,
     TIME_SCATTER,
+    LeftOut,
     calibrate,
     leave_one_out,
 )
 from .calibration_report import calibration_summary, format_calibration, write_calibration
+from .comparison import (
+    CLASSES,
+    SHORT_TOLERANCE,
+    Comparison,
+    compare,
+    judge,
+    recommend,
+    shared,
+    warning_line,
+)
 from .exceptions import (
     OutputError,
     ScenarioError,
@@ -318,11 +328,14 @@ def _calibrate_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None
         help="fit hidden brake and drive figures to a maker's published stopping table",
         description=_wrap(
             "Turn every row of TABLE (the stopping-table CSV format of the README) into the "
-            "Annex-B scenario it describes, and fit the figures --fit names with least squares "
-            "on the published distances and times. Writes calibration.json (figures with "
-            "1-sigma uncertainties, every row published vs simulated, cost and rank), "
-            "calibrated.yaml (a drives-and-brakes fragment a scenario can include) and "
-            "calibration.png into --out."
+            "Annex-B scenario it describes, and fit brake and drive figures with least squares "
+            "on the published distances and times. By default every model class (--classes) "
+            "is fitted and compared (chi2 per degree of freedom, AIC, BIC, bias, leave-one-out "
+            "with shared figures) and the simplest class that fits is written; --fit fits one "
+            "set of figures instead. Writes calibration.json (figures with 1-sigma "
+            "uncertainties, every row published vs simulated, the comparison), calibrated.yaml "
+            "(a drives-and-brakes fragment a scenario can include, with the figures' "
+            "covariance for bounds) and calibration.png into --out."
         ),
         epilog=_EPILOG,
         formatter_class=formatter,
@@ -333,10 +346,31 @@ def _calibrate_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None
     )
     calibrate.add_argument(
         "--fit",
-        default=",".join(DEFAULT_FIT),
+        default=None,
         metavar="FIGURES",
-        help=f"comma-separated figures to fit (default {','.join(DEFAULT_FIT)}): "
+        help=f"fit these comma-separated figures instead of comparing classes: "
         f"{', '.join(FIGURES)}",
+    )
+    calibrate.add_argument(
+        "--classes",
+        default=",".join(CLASSES),
+        metavar="NAMES",
+        help=f"model classes to compare, simplest first (default {','.join(CLASSES)})",
+    )
+    calibrate.add_argument(
+        "--short-tolerance",
+        type=float,
+        default=SHORT_TOLERANCE,
+        metavar="X",
+        help="a class fits only if no published time or distance is under-predicted by more "
+        f"than this fraction [-] (default {SHORT_TOLERANCE}; short is the unsafe side)",
+    )
+    calibrate.add_argument(
+        "--workers",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="processes for the fits (default: all cores)",
     )
     calibrate.add_argument(
         "--distance-scatter",
@@ -455,14 +489,58 @@ def _calibrate(args: argparse.Namespace) -> int:
     ):
         if not (0.0 < value <= 10.0):
             raise ScenarioError("command line", option, f"{value} must be in (0, 10]")
+    if not (0.0 <= args.short_tolerance < 1.0):
+        raise ScenarioError(
+            "command line", "--short-tolerance", f"{args.short_tolerance} must be in [0, 1)"
+        )
     try:
         check_output_folder(args.out)
     except OutputError as exc:
         raise ScenarioError("command line", "--out", exc.problem) from exc
     table = read_stopping_table(args.table)
-    fit = [name.strip() for name in args.fit.split(",") if name.strip()]
     scatter = (args.distance_scatter, args.time_scatter)
     show = not (args.quiet or args.json) and sys.stderr.isatty()
+    comparison, checks = _fit_or_compare(args, table, scatter, show)
+    calibration = comparison.best.calibration
+    summary = calibration_summary(calibration, table, checks, comparison)
+    written = write_calibration(args.out, calibration, table, checks, summary, comparison)
+    warning = warning_line(comparison)
+    if warning is not None:
+        warnings.warn(warning, VtmWarning, stacklevel=1)
+    if args.json:
+        print(json.dumps(summary, indent=2, allow_nan=False))
+    elif not args.quiet:
+        print(format_calibration(summary))
+        print(f"wrote {args.out}/: {', '.join(written)}")
+    return EXIT_OK
+
+
+def _fit_or_compare(
+    args: argparse.Namespace, table: Any, scatter: tuple[float, float], show: bool
+) -> tuple[Comparison, list[LeftOut]]:
+    """The classes compared (default), or the one set of figures --fit names, judged alike."""
+    if args.fit is None:
+        classes = [name.strip() for name in args.classes.split(",") if name.strip()]
+        loo = {shared(CLASSES[c][1]) for c in classes if c in CLASSES}
+        count = len(classes) + (len(loo) if len(table.joints) > 1 else 0)
+        with tqdm(
+            desc="fitting", unit="fit", total=count, file=sys.stderr, disable=not show
+        ) as bar:
+
+            def tick(_: str) -> None:
+                bar.update(1)
+
+            comparison = compare(
+                table,
+                args.robot,
+                classes,
+                scatter=scatter,
+                short_tolerance=args.short_tolerance,
+                workers=args.workers,
+                progress=tick,
+            )
+        return comparison, []
+    fit = [name.strip() for name in args.fit.split(",") if name.strip()]
     with tqdm(desc="fitting", unit="evaluation", file=sys.stderr, disable=not show) as bar:
 
         def progress(evaluations: int) -> None:
@@ -472,14 +550,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         checks = (
             leave_one_out(table, args.robot, fit, scatter=scatter) if args.leave_one_out else []
         )
-    summary = calibration_summary(calibration, table, checks)
-    written = write_calibration(args.out, calibration, table, checks, summary)
-    if args.json:
-        print(json.dumps(summary, indent=2, allow_nan=False))
-    elif not args.quiet:
-        print(format_calibration(summary))
-        print(f"wrote {args.out}/: {', '.join(written)}")
-    return EXIT_OK
+    judged = judge("custom", f"--fit {','.join(fit)}", calibration, args.short_tolerance, checks)
+    return recommend([judged], args.short_tolerance), checks
 
 
 def _with_integrator_options(scenario: Scenario, args: argparse.Namespace) -> Scenario:

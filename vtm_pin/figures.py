@@ -16,18 +16,22 @@ run`` (``summary.json``) and every study case (its row of the results table):
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from .bounds import derived_uppers, describe, upper_bounds, variants
 from .flags import Flag, case_flags, tool_drop
 from .kinematics import compute_tool_jacobian
 from .results import SimulationResult
 from .stopping import StoppingReport
 
+#: Flags meaning the arm is not held: it collapses, or slides on once it moves.
+NOT_HELD = ("brake_cannot_hold", "brake_cannot_stop")
 #: The figures of a stop, in table order, with their units.
 METRICS = {
     "robot_stop_time": "s",
@@ -91,17 +95,21 @@ class StopFigures:
         flags: The broken assumptions (:mod:`vtm_pin.flags`), empty if none.
         chain: The stopping chain and separation distances with their inputs
             (:meth:`vtm_pin.separation.Separation.describe`).
+        upper: ``<figure>_upper`` bounds (:mod:`vtm_pin.bounds`); empty without bounds.
+        bounds: How the bounds were made; empty without bounds.
     """
 
     status: str
     metrics: Mapping[str, float | None]
     flags: tuple[Flag, ...]
     chain: Mapping[str, Any]
+    upper: Mapping[str, float | None] = field(default_factory=dict)
+    bounds: Mapping[str, Any] = field(default_factory=dict)
 
     @property
     def holds(self) -> bool:
-        """Whether every brake can hold the arm's weight throughout the stop."""
-        return not any(flag.kind == "brake_cannot_hold" for flag in self.flags)
+        """Whether every brake can hold the arm's weight, and stop it, throughout the stop."""
+        return not any(f.kind in NOT_HELD for f in self.flags)
 
 
 def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport) -> StopFigures:
@@ -177,3 +185,67 @@ def describe_flags(flags: tuple[Flag, ...]) -> list[dict[str, Any]]:
         }
         for f in flags
     ]
+
+
+def bound_variants(scenario: Any, loader: Any = None) -> list[Any]:
+    """The scenarios a scenario's bounds need (:func:`vtm_pin.bounds.variants`), built.
+
+    Args:
+        scenario: The nominal scenario, with ``bounds``.
+        loader: Loads the robots (a study's cache); :func:`vtm_pin.robot.load_robot` if None.
+    """
+    from .robot import load_robot
+    from .scenario import build_scenario
+
+    return [
+        build_scenario(
+            raw,
+            source=f"{scenario.source} (bound {k})",
+            base_dir=scenario.base_dir,
+            name=scenario.name,
+            loader=loader or load_robot,
+        )
+        for k, raw in enumerate(variants(scenario.raw, scenario.bounds, scenario.uncertainty))
+    ]
+
+
+def bounded(
+    scenario: Any, figures: StopFigures, runs: Sequence[tuple[Any, SimulationResult]]
+) -> StopFigures:
+    """``figures`` with their upper bounds, from the runs of :func:`bound_variants`' scenarios.
+
+    A worn state whose brakes cannot hold the load is flagged (``worn_brake_cannot_hold``):
+    its bound describes a collapsing arm.
+    """
+    from .stopping import compute_stopping_report
+
+    measured = []
+    for variant, result in runs:
+        report = compute_stopping_report(variant.robot, result, variant.brakes, variant.tool_frame)
+        measured.append(stop_figures(variant, result, report))
+    upper = upper_bounds(
+        figures.metrics, [m.metrics for m in measured], scenario.bounds, scenario.uncertainty
+    )
+    upper |= derived_uppers(scenario.separation, figures.metrics, upper)
+    flags = figures.flags
+    worn = measured[0]
+    if not worn.holds and figures.holds:
+        weak = next(f for f in worn.flags if f.kind in NOT_HELD)
+        wear = 100 * scenario.bounds.brake_wear
+        flags = (
+            *flags,
+            Flag(
+                "worn_brake_cannot_hold",
+                f"with every brake {wear:g} % weaker (the bounds' wear), {weak.message}: the "
+                "upper bounds describe a collapsing arm",
+                weak.joints,
+                weak.value,
+                weak.limit,
+            ),
+        )
+    return dataclasses.replace(
+        figures,
+        flags=tuple(flags),
+        upper=upper,
+        bounds=describe(scenario.bounds, scenario.uncertainty),
+    )

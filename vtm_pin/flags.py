@@ -7,6 +7,9 @@ A figure a safety engineer signs must not silently describe something else than 
   the arm held, at the signal or at some instant of the stop. Such an arm cannot be held on
   its brakes: it collapses, and its tested joint's angle understates what moves (the tool's
   drop is quoted);
+* ``brake_cannot_stop``: a brake's kinetic torque at slip speed 0 (what stops a moving joint)
+  is below its joint's gravity load: a joint that moves slides on under its own weight (to
+  the speed at which a speed-dependent brake balances it), whatever its static torque holds;
 * ``joint_slips``: the engaged brake of a joint other than the tested one gave way (it could
   not hold its joint at rest: it started sliding from rest, or slipped when stuck), so the
   arm moved where the test says only one joint moves;
@@ -16,7 +19,9 @@ A figure a safety engineer signs must not silently describe something else than 
 * ``tool_speed_implausible``: a peak tool speed during the stop above what the drives could
   give from the pose at the signal, every joint at its URDF velocity limit (the arm falls or
   is whipped by a lock);
-* ``not_stopped``: some joint still moves at the end of the run.
+* ``not_stopped``: some joint still moves at the end of the run;
+* ``worn_brake_cannot_hold``: with the bounds' brake wear, a brake cannot hold the load (set by
+  :func:`vtm_pin.figures.bounded`): the upper bounds describe a collapsing arm.
 
 Flags are a case's record, never a failure: the figures stay, with the flag beside them.
 """
@@ -40,6 +45,8 @@ from .stopping import StoppingReport
 #: The flag kinds, in the order reports list them.
 KINDS = (
     "brake_cannot_hold",
+    "brake_cannot_stop",
+    "worn_brake_cannot_hold",
     "joint_slips",
     "not_stopped",
     "payload_above_rated",
@@ -93,15 +100,58 @@ def gravity_loads(robot: Robot, q: np.ndarray) -> np.ndarray:
     return np.abs([pin.computeGeneralizedGravity(model, data, row) for row in np.atleast_2d(q)])
 
 
-def holding_flag(
+def kinetic_torques(robot: Robot, brakes: Sequence[Brake]) -> np.ndarray:
+    """Each joint's brake torque at slip speed 0 and full normal force, joint side [N m].
+
+    What stops a moving joint. NaN without a brake, +inf for ideal brakes.
+    """
+    kinetic = np.full(robot.nv, np.nan)
+    for brake in brakes:
+        i = robot.joint_index(brake.joint)
+        ratio = float(robot.gear_ratio[i])
+        kinetic[i] = math.inf if brake.ideal else brake.sliding(math.inf, 0.0, ratio)
+    return kinetic
+
+
+def holding_flags(
     robot: Robot, brakes: Sequence[Brake], result: SimulationResult, report: StoppingReport
-) -> Flag | None:
-    """``brake_cannot_hold`` if a brake is below its joint's gravity load from the signal on."""
+) -> list[Flag]:
+    """``brake_cannot_hold`` and ``brake_cannot_stop`` from the signal on (see the module)."""
     loads = gravity_loads(robot, result.q[result.t >= report.signal_time])
-    static = static_torques(robot, brakes)
-    # A joint without a brake holds nothing, unless a prescribed lock holds it to the end.
-    static[np.isnan(static) & result.free[-1]] = 0.0
-    margins = static - loads
+    out = []
+    for kind, torques, what, consequence in (
+        (
+            "brake_cannot_hold",
+            static_torques(robot, brakes),
+            "hold the arm's weight",
+            "the arm collapses",
+        ),
+        (
+            "brake_cannot_stop",
+            kinetic_torques(robot, brakes),
+            "stop its joint once it moves",
+            "a moving arm slides on under its own weight",
+        ),
+    ):
+        # A joint without a brake holds nothing, unless a prescribed lock holds it to the end.
+        torques[np.isnan(torques) & result.free[-1]] = 0.0
+        flag = _load_flag(robot, report, loads, torques, kind, what, consequence)
+        if flag is not None:
+            out.append(flag)
+    return out
+
+
+def _load_flag(
+    robot: Robot,
+    report: StoppingReport,
+    loads: np.ndarray,
+    torques: np.ndarray,
+    kind: str,
+    what: str,
+    consequence: str,
+) -> Flag | None:
+    """A flag if some joint's brake ``torques`` are below its gravity ``loads`` [N m]."""
+    margins = torques - loads
     slack = SLACK * max(1.0, float(np.max(loads)))
     worst = np.min(np.where(np.isnan(margins), math.inf, margins), axis=0)
     weak = [i for i in range(robot.nv) if worst[i] < -slack]
@@ -112,12 +162,12 @@ def holding_flag(
     when = "at the signal" if margins[0, j] < -slack else "during the stop"
     load = float(np.max(loads[:, j]))
     return Flag(
-        "brake_cannot_hold",
-        f"the brake of {', '.join(names)} cannot hold the arm's weight {when} "
-        f"({robot.joints[j]}: static torque {static[j]:.4g} N m"
-        f"{' (no brake)' if static[j] == 0.0 else ''} against a gravity load of up to "
-        f"{load:.4g} N m, joint side): the arm collapses; the tool drops "
-        f"{tool_drop(report):.3g} m, more than the tested joint's angle says",
+        kind,
+        f"the brake of {', '.join(names)} cannot {what} {when} ({robot.joints[j]}: "
+        f"{'static' if kind == 'brake_cannot_hold' else 'sliding'} torque {torques[j]:.4g} N m"
+        f"{' (no brake)' if torques[j] == 0.0 else ''} against a gravity load of up to "
+        f"{load:.4g} N m, joint side): {consequence}; the tool drops {tool_drop(report):.3g} m, "
+        "more than the tested joint's angle says",
         names,
         float(worst[j]),
         0.0,
@@ -260,7 +310,7 @@ def case_flags(
         tool_frame: The frame the report follows.
     """
     found = [
-        holding_flag(robot, brakes, result, report),
+        *holding_flags(robot, brakes, result, report),
         slip_flag(result, tested),
         None
         if not report.moving

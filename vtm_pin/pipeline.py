@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from .analysis import EnergyMomentum, compute_energy_momentum
 from .exceptions import OutputError, ScenarioError, VtmWarning
-from .figures import StopFigures, stop_figures
+from .figures import StopFigures, bound_variants, bounded, stop_figures
 from .inputs import find_shipped
 from .report import build_summary, write_trajectory
 from .results import SimulationResult
@@ -130,6 +130,11 @@ def run(
         }
     others = {rule: results[rule] for rule in rules[1:]}
     figures = stop_figures(scenario, results[main], stopping[main]) if stopping else None
+    if figures is not None and scenario.bounds is not None:
+        with warnings.catch_warnings():  # the variants' own flags: bounded() says what counts
+            warnings.simplefilter("ignore", VtmWarning)
+            cases = bound_variants(scenario)
+            figures = bounded(scenario, figures, [(c, run_scenario(c, main)) for c in cases])
     for flag in figures.flags if figures is not None else ():
         warnings.warn(flag.message, VtmWarning, stacklevel=2)
     summary = build_summary(scenario, results[main], energies[main], others, stopping, figures)

@@ -105,6 +105,8 @@ def build_summary(
     if figures is not None:
         summary["figures"] = {
             "values": dict(figures.metrics),
+            "upper": dict(figures.upper),
+            "bounds": dict(figures.bounds),
             "units": {**METRICS, "stop_time.<joint>": "s", "stop_angle.<joint>": "rad"},
             "definitions": DEFINITIONS,
         }
@@ -292,6 +294,14 @@ def format_figures(figures: StopFigures) -> str:
             + f" = {_opt(terms['S_p'], 'm')} (v_h {ssm['human_speed']:g} m/s, T_r "
             f"{ssm['T_r']:g} s, v_r {ssm['v_r']:.3g} m/s)"
         )
+    if figures.upper:
+        shown = ", ".join(
+            f"{name.removesuffix('_upper')} {_opt(value, METRICS[name.removesuffix('_upper')])}"
+            for name, value in figures.upper.items()
+            if value is not None
+        )
+        lines.append(f"upper bounds: {shown}")
+        lines.append(f"  {figures.bounds['text']}")
     if not figures.flags:
         lines.append("flags: none (every brake holds the load; no other joint slips)")
     lines += [f"FLAG {flag.kind}: {flag.message}" for flag in figures.flags]

@@ -385,15 +385,25 @@ def _load_model(text: str, base_dir: Path | None) -> tuple[pin.Model, str]:
         return _build_from_urdf(local), str(local)
     if text not in list_example_robots():
         raise RobotNotFound(text, list_local_robots(), list_example_robots())
+    model, source = _EXAMPLE_MODELS.get(text, lambda: _load_example(text))
+    return pin.Model(model), source  # a copy: the caller writes its armature
+
+
+def _load_example(name: str) -> tuple[pin.Model, str]:
+    """An example-robot-data robot's model (its loader also builds meshes: 0.5 s, so once)."""
     import example_robot_data as erd
 
     with _parser_messages() as messages:
         try:
-            wrapper = erd.load(text)
+            wrapper = erd.load(name)
         except Exception as exc:  # the loader raises bare exceptions of several kinds
-            raise RobotLoadError(text, excerpt(" ".join(str(exc).split()), 200)) from exc
-    _refuse_parser_errors(messages, text)
-    return wrapper.model, str(getattr(wrapper, "urdf", text))
+            raise RobotLoadError(name, excerpt(" ".join(str(exc).split()), 200)) from exc
+    _refuse_parser_errors(messages, name)
+    return wrapper.model, str(getattr(wrapper, "urdf", name))
+
+
+#: The example-robot-data models this process has loaded, by name (never modified: copied).
+_EXAMPLE_MODELS = ModelCache(16)
 
 
 def robot_data_file(spec: str, urdf: str | Path | None = None) -> Path | None:
@@ -433,11 +443,25 @@ def robot_data(spec: str, base_dir: Path | None = None) -> Mapping[str, Any]:
     found = robot_data_file(spec)
     if found is None:
         return {}
-    raw = read_yaml(found, RobotDataError)
+    try:
+        stat = found.stat()
+    except (OSError, ValueError):
+        stat = None
+    key = (str(found), stat.st_mtime_ns if stat else 0, stat.st_size if stat else 0)
+    return _DATA.get(key, lambda: _parse_robot_data(found))
+
+
+def _parse_robot_data(path: Path) -> Mapping[str, Any]:
+    """A robot data file, parsed and checked (read only: it is shared through the cache)."""
+    raw = read_yaml(path, RobotDataError)
     if raw is None or (isinstance(raw, Mapping) and "robot" in raw):
         return {}
-    check_schema(raw, ROBOT_DATA_SCHEMA, str(found), RobotDataError)
+    check_schema(raw, ROBOT_DATA_SCHEMA, str(path), RobotDataError)
     return dict(raw)
+
+
+#: Parsed robot data files by (path, modification time, size): a study builds many cases.
+_DATA = ModelCache(16)
 
 
 def _read_sidecar(path: Path | None, joints: Sequence[str]) -> dict[str, Any]:

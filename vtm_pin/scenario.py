@@ -13,6 +13,7 @@ import numpy as np
 import pinocchio as pin
 
 from .annex_b import Conditions, TestState, compute_test_state, describe_conditions
+from .bounds import BoundSpec, Uncertainty, parse_bounds
 from .brakes import Brake
 from .exceptions import (
     BrakeError,
@@ -115,6 +116,72 @@ def _time(description: str, *, positive: bool = False) -> dict[str, Any]:
     return number(0.0, MAX_TIME, description, exclusive_low=positive)
 
 
+#: A calibration's figures and covariance, as vtm-pin calibrate writes them into a fragment.
+CALIBRATION_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "additionalProperties": False,
+    "required": ["figures", "covariance"],
+    "description": "The calibrated figures' covariance (written by vtm-pin calibrate into its "
+    "fragment), which bounds propagate. Default: none.",
+    "properties": {
+        "source": {"type": "string", "description": "The published data fitted to."},
+        "figures": {
+            "type": "array",
+            "description": "Each fitted figure: name, value (SI), unit, the key paths it sets.",
+            "items": {
+                "type": "object",
+                "additionalProperties": False,
+                "required": ["name", "value", "keys"],
+                "properties": {
+                    "name": {"type": "string", "description": "Figure name."},
+                    "value": number(0.0, 1.0e9, "Fitted value (SI), > 0.", exclusive_low=True),
+                    "unit": {"type": "string", "description": "Its unit."},
+                    "keys": {
+                        "type": "array",
+                        "items": {"type": "string"},
+                        "minItems": 1,
+                        "description": "Scenario key paths it sets.",
+                    },
+                },
+            },
+        },
+        "covariance": {
+            "type": "array",
+            "items": {"type": "array", "items": number(-1.0e18, 1.0e18, "Covariance (SI).")},
+            "description": "Covariance of the figures (SI, square units), one row per figure.",
+        },
+        "inflation": number(1.0, 1.0e9, "Factor chi^2/dof the covariance was inflated by [-]."),
+        "fixed": {
+            "type": "array",
+            "items": {"type": "string"},
+            "description": "Figures held at a bound of their search (no uncertainty).",
+        },
+        "undetermined": {
+            "type": "array",
+            "items": {"type": "string"},
+            "description": "Figures the table does not determine (no bound can cover them).",
+        },
+        "bias": {
+            "type": "object",
+            "additionalProperties": False,
+            "description": "Mean relative residual of the calibration's times and distances.",
+            "properties": {
+                "stop_time": number(-10.0, 10.0, "Of the times [-]."),
+                "stop_distance": number(-10.0, 10.0, "Of the distances [-]."),
+            },
+        },
+        "shortfall": {
+            "type": "object",
+            "additionalProperties": False,
+            "description": "Most negative relative residual of the calibration's times and "
+            "distances (0 if none is negative): bounds add it back.",
+            "properties": {
+                "stop_time": number(-10.0, 0.0, "Of the times [-], <= 0."),
+                "stop_distance": number(-10.0, 0.0, "Of the distances [-], <= 0."),
+            },
+        },
+    },
+}
 #: JSON schema of a scenario file. Each key's ``description`` gives its unit and default.
 SCHEMA: dict[str, Any] = {
     "type": "object",
@@ -314,8 +381,8 @@ SCHEMA: dict[str, Any] = {
         },
         "brakes": {
             "type": "object",
-            "description": "Brake per joint name; acts after the stop signal. Default: the "
-            "robot data file's brakes (with a stop); null: this joint has no brake.",
+            "description": "Brake per joint name; acts after the stop signal; null gives the "
+            "joint no brake. Default: the robot data file's brakes (with a stop).",
             "additionalProperties": {**BRAKE_SCHEMA, "type": ["object", "null"]},
         },
         "safeguard": {
@@ -367,6 +434,21 @@ SCHEMA: dict[str, Any] = {
                 },
             },
         },
+        "bounds": {
+            "type": "object",
+            "additionalProperties": False,
+            "description": "One-sided upper bounds of the stopping figures (see the bounds "
+            "section of the README). Default: none (nominal figures only).",
+            "properties": {
+                "confidence": number(
+                    0.5, 0.9999, "One-sided confidence [-], 0.5 to 0.9999. Default: 0.95."
+                ),
+                "brake_wear": number(
+                    0.0, 0.9, "Brake torques lower by this fraction [-], 0 to 0.9. Default: 0."
+                ),
+            },
+        },
+        "calibration": CALIBRATION_SCHEMA,
         "constraints": {
             "type": "array",
             "items": _CONSTRAINT,
@@ -436,6 +518,11 @@ class Scenario:
         test_state: The Annex-B test state the initial state was computed from, if any.
         separation: The stopping chain before the robot and the separation distances' inputs
             (``safeguard``, ``separation``), each part None where not given.
+        bounds: The upper bounds asked for (``bounds``), if any.
+        uncertainty: The calibrated figures' covariance (``calibration``, from a calibrated
+            fragment), if any.
+        raw: The scenario as parsed, fragments and robot data merged (bounds rebuild it).
+        base_dir: The folder its relative paths are resolved against.
     """
 
     source: str
@@ -450,6 +537,10 @@ class Scenario:
     payload: Payload | None = None
     test_state: TestState | None = None
     separation: Separation = field(default_factory=Separation)
+    bounds: BoundSpec | None = None
+    uncertainty: Uncertainty | None = None
+    raw: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    base_dir: Path | None = None
 
     @property
     def robot(self) -> Robot:
@@ -643,6 +734,7 @@ def build_scenario(
 
     stab = raw.get("stabilisation", {})
     transition = raw.get("transition", DEFAULT_TRANSITION)
+    bounds, uncertainty = parse_bounds(raw, source)
     try:
         problem = Problem(
             robot=robot,
@@ -672,6 +764,10 @@ def build_scenario(
         payload=payload,
         test_state=test_state,
         separation=_separation(raw, source),
+        bounds=bounds,
+        uncertainty=uncertainty,
+        raw=raw,
+        base_dir=base_dir,
     )
 
 
@@ -757,7 +853,8 @@ FRAGMENT_SCHEMA: dict[str, Any] = {
     "type": "object",
     "additionalProperties": False,
     "properties": {
-        key: SCHEMA["properties"][key] for key in ("description", "drives", "brakes", "assumptions")
+        key: SCHEMA["properties"][key]
+        for key in ("description", "drives", "brakes", "assumptions", "calibration")
     },
 }
 
@@ -820,6 +917,8 @@ def _merge_fragments(
             if joints:
                 merged[section] = joints
         assumptions += fragment.get("assumptions", [])
+        if "calibration" in fragment:
+            merged.setdefault("calibration", fragment["calibration"])
     merged["assumptions"] = assumptions + list(raw.get("assumptions", []))
     return merged
 

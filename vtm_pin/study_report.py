@@ -48,6 +48,7 @@ import pandas as pd
 
 from .figures import DEFINITIONS as FIGURE_DEFINITIONS
 from .figures import METRICS as FIGURE_METRICS
+from .figures import NOT_HELD
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -418,7 +419,7 @@ def _flagged(ax: Axes, part: pd.DataFrame, column: str) -> None:
     if "flags" not in part.columns or part.empty:
         return
     flags = _flag_texts(part).to_numpy()
-    collapse = np.array(["brake_cannot_hold" in f for f in flags], dtype=bool)
+    collapse = np.array([any(k in f for k in NOT_HELD) for f in flags], dtype=bool)
     other = (flags != "") & ~collapse
     x, y = _speed_percent(part), _values(part, column)
     if collapse.any():
@@ -763,7 +764,7 @@ def _section_flagged(summary: Mapping[str, Any], table: pd.DataFrame) -> str:
         parts.append("</section>")
         return "\n".join(parts)
     flagged = table[flags != ""]
-    collapse = int(flags.str.contains("brake_cannot_hold").sum())
+    collapse = int(flags.map(lambda f: any(k in f for k in NOT_HELD)).sum())
     falls = (
         f"; in {collapse} a brake cannot hold the load and the arm collapses" if collapse else ""
     )
@@ -1049,7 +1050,7 @@ def _flag_counts(table: pd.DataFrame) -> dict[str, int]:
     """Cases whose brakes cannot hold the load (``cannot_hold``), and all flagged cases."""
     flags = _flag_texts(table)
     return {
-        "cannot_hold": int(flags.str.contains("brake_cannot_hold").sum()),
+        "cannot_hold": int(flags.map(lambda f: any(k in f for k in NOT_HELD)).sum()),
         "flagged": int((flags != "").sum()),
     }
 

@@ -70,10 +70,11 @@ DEFINITIONS = {
     "status": "ok: every joint came to rest; not_stopped: some joint was still moving at the "
     "end of the run (lengthen duration); error: <message>: the case failed.",
     "holds": "true: every brake's static torque holds its joint's gravity load throughout the "
-    "stop; false: some brake cannot (the arm collapses: see flags).",
-    "flags": "Broken assumptions behind the case's figures (brake_cannot_hold, joint_slips, "
-    "not_stopped, payload_above_rated, payload_implausible, tool_speed_implausible), ; "
-    "separated; each case record (cases/<case>.json) has the messages.",
+    "stop, and its sliding torque stops it; false: some brake cannot (see flags).",
+    "flags": "Broken assumptions behind the case's figures (brake_cannot_hold, "
+    "brake_cannot_stop, worn_brake_cannot_hold, joint_slips, not_stopped, payload_above_rated, "
+    "payload_implausible, tool_speed_implausible), ; separated; each case record "
+    "(cases/<case>.json) has the messages.",
     **FIGURE_DEFINITIONS,
     "stop_time.<joint>": "That joint's stopping time [s].",
     "stop_angle.<joint>": "That joint's travel after the signal, |q(end) - q(signal)| [rad].",
@@ -141,11 +142,12 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
             :mod:`vtm_pin.batch`) or ``scalar``.
     """
     from .batch import run_many
+    from .figures import bound_variants
     from .scenario import build_scenario
     from .study import resolve_case
 
     records: list[dict[str, Any]] = []
-    built: list[tuple[dict[str, Any], Any]] = []
+    built: list[tuple[dict[str, Any], Any, list[Any]]] = []  # record, scenario, bound variants
     for task in tasks:
         case = task.case
         record: dict[str, Any] = {"case": case.id, "index": case.index, "values": dict(case.values)}
@@ -162,34 +164,41 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
                 loader=_ROBOTS,
                 valid=_valid_base(task.base),
             )
-            built.append((record, scenario))
+            extra = bound_variants(scenario, _ROBOTS) if scenario.bounds is not None else []
+            built.append((record, scenario, extra))
         except Exception as exc:
             _record_error(record, exc)
         record["timing"] = {"build": time.perf_counter() - start}
-    groups: dict[str, list[tuple[dict[str, Any], Any]]] = {}
-    for pair in built:
-        groups.setdefault(pair[1].transition, []).append(pair)
-    for transition, pairs in groups.items():
+    groups: dict[str, list[tuple[dict[str, Any], Any, list[Any]]]] = {}
+    for item in built:
+        groups.setdefault(item[1].transition, []).append(item)
+    for transition, items in groups.items():
+        # Every case's scenario and its bounds' variants run in one batch.
+        runs = [(k, s) for k, (_, scenario, extra) in enumerate(items) for s in (scenario, *extra)]
         try:
             outcome = run_many(
-                [scenario.problem for _, scenario in pairs],
-                [scenario.integrator for _, scenario in pairs],
+                [s.problem for _, s in runs],
+                [s.integrator for _, s in runs],
                 transition=transition,
                 engine=engine,
             )
         except Exception as exc:
-            for record, _ in pairs:
+            for record, _, _ in items:
                 _record_error(record, exc)
                 record["timing"]["report"] = 0.0
             continue
-        for (record, scenario), result, used, reason, share in zip(
-            pairs, outcome.results, outcome.engines, outcome.fallbacks, outcome.shares, strict=True
+        done: dict[int, list[tuple[Any, Any, str, str | None, Any]]] = {}
+        for (k, s), *rest in zip(
+            runs, outcome.results, outcome.engines, outcome.fallbacks, outcome.shares, strict=True
         ):
+            done.setdefault(k, []).append((s, *rest))
+        for k, (record, scenario, _) in enumerate(items):
+            (_, result, used, reason, share), *variants = done[k]
             record["engine"] = used
             record["fallback"] = reason if engine == "batched" else None
             if share is not None:
                 record["engine_split"] = share
-            _record_result(record, scenario, result)
+            _record_result(record, scenario, result, [(v[0], v[1]) for v in variants])
     for record in records:
         timing = record["timing"]
         record["wall_time"] = sum(timing.values())
@@ -215,9 +224,14 @@ def _valid_base(base: Mapping[str, Any]) -> Mapping[str, Any] | None:
     return base if ok else None
 
 
-def _record_result(record: dict[str, Any], scenario: Any, result: Any) -> None:
-    """Fill a case's record from its simulation (or the error that ended it)."""
-    from .figures import describe_flags, stop_figures
+def _record_result(
+    record: dict[str, Any], scenario: Any, result: Any, variants: Sequence[tuple[Any, Any]] = ()
+) -> None:
+    """Fill a case's record from its simulation (or the error that ended it).
+
+    ``variants``: the runs its bounds need (scenario, result or error), if it asks for bounds.
+    """
+    from .figures import bounded, describe_flags, stop_figures
     from .scenario import scenario_failure
     from .stopping import compute_stopping_report
 
@@ -231,9 +245,15 @@ def _record_result(record: dict[str, Any], scenario: Any, result: Any) -> None:
             scenario.robot, result, scenario.brakes, scenario.tool_frame
         )
         figures = stop_figures(scenario, result, report)
+        if variants:
+            failed = next((r for _, r in variants if isinstance(r, Exception)), None)
+            if failed is not None:
+                raise scenario_failure(scenario, failed)
+            figures = bounded(scenario, figures, variants)
+            record["bounds"] = dict(figures.bounds)
         record.update(
             status=figures.status,
-            metrics=dict(figures.metrics),
+            metrics={**figures.metrics, **figures.upper},
             holds=figures.holds,
             flags=describe_flags(figures.flags),
             chain={k: v for k, v in figures.chain.items() if k in ("safeguard", "definition")},
@@ -638,12 +658,16 @@ def results_table(study: Study, records: Sequence[Mapping[str, Any]]) -> pd.Data
 
     joints: dict[str, None] = {}
     for record in records:
-        joints.update(dict.fromkeys(k.split(".", 1)[1] for k in record["metrics"] if "." in k))
-    columns = [
-        *METRICS,
-        *(f"stop_time.{j}" for j in joints),
-        *(f"stop_angle.{j}" for j in joints),
-    ]
+        joints.update(
+            dict.fromkeys(
+                k.split(".", 1)[1]
+                for k in record["metrics"]
+                if "." in k and not k.endswith("_upper")
+            )
+        )
+    uppers = {k for r in records for k in r["metrics"] if k.endswith("_upper")}
+    columns = [c for m in METRICS for c in (m, f"{m}_upper") if c == m or c in uppers]
+    columns += [f"stop_time.{j}" for j in joints] + [f"stop_angle.{j}" for j in joints]
     rows = []
     for record in records:
         values = {k: ("none" if v is None else v) for k, v in record["values"].items()}
@@ -720,6 +744,7 @@ def build_study_summary(
         "timing_median": split,
         "wall_time_total": sum(float(r["wall_time"]) for r in records),
         "stopping_chain": chains[0] if chains else {},
+        "bounds": next((r["bounds"] for r in records if r.get("bounds")), {}),
         "flagged": [
             {"case": r["case"], "flags": r["flags"]} for r in flagged[:MAX_FLAGGED_SUMMARY]
         ],
