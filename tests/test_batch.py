@@ -29,6 +29,14 @@ from vtm_pin.study import find_study, load_study
 from vtm_pin.study_runner import format_study, run_study
 
 TOLERANCE = 1e-8
+UR_JOINTS = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
 
 
 def assert_same_ends(scalar: vp.SimulationResult, batched: vp.SimulationResult) -> None:
@@ -111,10 +119,7 @@ def test_braking_laws_that_decelerate_hardest_at_the_start_agree(law: str) -> No
         raw["drives"] = {
             j: {"gear_ratio": 101, "rotor_inertia": 1e-4 if i < 3 else 3e-5}
             | {"short_circuit_torque": 0.4, "short_circuit_speed": 150.0}
-            for i, j in enumerate(
-                ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
-                + ("wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
-            )
+            for i, j in enumerate(UR_JOINTS)
         }
     if law in ("viscous", "both"):
         for j in ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"):

@@ -157,9 +157,7 @@ def test_the_calibrated_fragment_carries_the_covariance_and_bounds_use_it(tmp_pa
     upper, values = output.figures.upper, output.figures.metrics
     for name in ("robot_stop_time", "stop_angle", "tcp_max_displacement"):
         assert upper[f"{name}_upper"] > values[name] > 0.0
-    assert output.summary["figures"]["bounds"]["figures"] == list(
-        output.scenario.uncertainty.names
-    )
+    assert output.summary["figures"]["bounds"]["figures"] == list(output.scenario.uncertainty.names)
     assert "10 % lower" in output.summary["figures"]["bounds"]["text"]
 
 
@@ -215,13 +213,14 @@ def coverage(draws: int, seed: int, folder: Path) -> tuple[float, float]:
     fit = ["delay", "sliding"]
     covered_angle = covered_time = 0
     for k in range(draws):
-        truth = {"delay": rng.uniform(0.02, 0.06), "sliding.shoulder_pan_joint": rng.uniform(40, 80)}
+        truth = {
+            "delay": rng.uniform(0.02, 0.06),
+            "sliding.shoulder_pan_joint": rng.uniform(40, 80),
+        }
         noise = [(rng.normal(0, SCATTER[0]), rng.normal(0, SCATTER[1]))]
         here = folder / f"draw{k}"
         here.mkdir()
-        table = read_stopping_table(
-            synthetic_table(here, fit, truth, COVERAGE_ROWS, noise)
-        )
+        table = read_stopping_table(synthetic_table(here, fit, truth, COVERAGE_ROWS, noise))
         calibration = calibrate(table, ROBOT, fit, scatter=SCATTER)
         (here / "calibrated.yaml").write_text(calibrated_fragment(calibration, table))
         with warnings.catch_warnings():

@@ -5,11 +5,13 @@ from __future__ import annotations
 import csv
 import json
 import math
+import warnings
 from pathlib import Path
 
 import pytest
 import yaml
 
+from vtm_pin import VtmWarning
 from vtm_pin.calibration import (
     FIGURES,
     CalibrationError,
@@ -156,24 +158,35 @@ def test_unknown_figures_are_refused() -> None:
         make_figures(["sliding", "sliding:shared"], ["j"])
 
 
+#: The class the model comparison writes for the UR5 (CB3) table (the slow test below).
+UR5_CLASS = "delay,sliding,viscous:shared"
+
+
 @pytest.mark.skipif(not UR5_TABLE.is_file(), reason="../shared/data is not beside the project")
 def test_ur5_cb3_table_fit_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The published UR5 (CB3) table: distances fit to 2 %, times within the stated 20 %+."""
+    """The published UR5 (CB3) table with the class the comparison chooses: distances fit to
+    2 %, times within the stated 20 %, and the base's 17 % short time said in one warning."""
     out = tmp_path / "out"
     command = ["calibrate", str(UR5_TABLE), "--robot", "ur5_cb3", "--out", str(out), "--json"]
-    assert main(command) == 0
-    summary = json.loads(capsys.readouterr().out)
+    assert main([*command, "--fit", UR5_CLASS]) == 0
+    printed = capsys.readouterr()
+    summary = json.loads(printed.out)
+    (warning,) = printed.err.splitlines()
+    assert warning.startswith(
+        f"vtm-pin: warning: the figures fitted (--fit {UR5_CLASS}) do not fit the table: short"
+    )
+    assert "row 2 (shoulder_pan_joint) time -17" in warning
     assert json.loads((out / "calibration.json").read_text()) == summary
     assert {p.name for p in out.iterdir()} == {
         "calibration.json",
         "calibrated.yaml",
         "calibration.png",
     }
-    assert summary["rank"] == 4 and summary["parameters_count"] == 4
+    assert summary["rank"] == 5 and summary["parameters_count"] == 5
     for row in summary["rows"]:
         published, simulated = row["stop_distance_published"], row["stop_distance_simulated"]
         assert simulated == pytest.approx(published, rel=0.02)
-        assert row["stop_time_simulated"] == pytest.approx(row["stop_time_published"], rel=0.25)
+        assert row["stop_time_simulated"] == pytest.approx(row["stop_time_published"], rel=0.20)
     fragment = yaml.safe_load((out / "calibrated.yaml").read_text())
     assert set(fragment["brakes"]) == set(load_robot("ur5_cb3").joints)
     # the shipped fragment is this fit (least_squares is deterministic; 1e-3 allows for
@@ -181,16 +194,43 @@ def test_ur5_cb3_table_fit_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture
     shipped = yaml.safe_load((ROBOTS_DIR / "ur5_cb3_calibrated.yaml").read_text())
     for joint, brake in fragment["brakes"].items():
         for key, value in brake.items():
-            assert shipped["brakes"][joint][key] == pytest.approx(value, rel=1e-3, abs=1e-6)
+            if isinstance(value, str):  # the friction law
+                assert shipped["brakes"][joint][key] == value
+            else:
+                assert shipped["brakes"][joint][key] == pytest.approx(value, rel=1e-3, abs=1e-6)
     # the shipped base scenario of the UR5 study reproduces the fitted rows
     base = yaml.safe_load((SCENARIOS_DIR / "ur5_cb3_annex_b.yaml").read_text())
     for row in summary["rows"]:
         raw = {**base, "annex_b": {**base["annex_b"], "joint": row["joint"]}}
-        output = run(build_scenario(raw, base_dir=SCENARIOS_DIR))
+        raw.pop("bounds")  # the nominal figures only
+        with warnings.catch_warnings():  # flags (a slipping elbow) are not this test's
+            warnings.simplefilter("ignore", VtmWarning)
+            output = run(build_scenario(raw, base_dir=SCENARIOS_DIR))
         joint = output.stopping[output.rule].joints[output.scenario.test_state.joint_index]
         # rtol 1e-8 there, 1e-10 in the fit; 183 deg/s rounded to 7 digits: 1e-4 rad and s
         assert abs(joint.stop_angle) == pytest.approx(row["stop_distance_simulated"], abs=1e-4)
         assert joint.stop_time == pytest.approx(row["stop_time_simulated"], abs=1e-4)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not UR5_TABLE.is_file(), reason="../shared/data is not beside the project")
+def test_ur5_cb3_model_comparison(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Every class on UR's table (about 2 minutes on 2 cores): none fits; the plausible,
+    determined class whose times fall least short (viscous) is written, and said so."""
+    out = tmp_path / "out"
+    command = ["calibrate", str(UR5_TABLE), "--robot", "ur5_cb3", "--out", str(out), "--json"]
+    assert main(command) == 0
+    printed = capsys.readouterr()
+    summary = json.loads(printed.out)
+    assert "no model class fits the table; using viscous" in printed.err
+    rows = {row["class"]: row for row in summary["comparison"]}
+    assert summary["class"] == "viscous" and summary["none_fits"]
+    assert rows["coulomb"]["time_bias"]["biased"]  # all three times 16-22 % short
+    assert any(r.startswith("not physical") for r in rows["viscous:joint"]["reasons"])
+    assert any(r.startswith("not determined") for r in rows["short_circuit"]["reasons"])
+    for row in summary["rows"]:
+        published, simulated = row["stop_distance_published"], row["stop_distance_simulated"]
+        assert simulated == pytest.approx(published, rel=0.05)
 
 
 def test_cli_refuses_bad_input_in_one_line(

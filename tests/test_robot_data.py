@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -115,7 +116,9 @@ def stop_scenarios() -> list[str]:
 
 @pytest.mark.parametrize("name", stop_scenarios())
 def test_no_shipped_scenario_has_a_brake_that_cannot_hold(name):
-    output = vp.pipeline.run(name)
+    with warnings.catch_warnings():  # other flags (a slipping joint) are not this test's
+        warnings.simplefilter("ignore", vp.VtmWarning)
+        output = vp.pipeline.run(name)
     assert output.figures is not None
     assert output.figures.holds, [f.message for f in output.figures.flags]
 

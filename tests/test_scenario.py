@@ -34,7 +34,8 @@ def changed(path, value):
 BAD = [
     (
         changed(["colour"], "red"),
-        r"'colour': unknown key; allowed keys here: annex_b, assumptions, brakes, constraints, ",
+        r"'colour': unknown key; allowed keys here: annex_b, assumptions, bounds, brakes, "
+        r"calibration, constraints, ",
     ),
     (changed(["duration"], "long"), r"'duration': 'long' is not a number"),
     (changed(["duration"], -1.0), r"'duration': -1.0 must be > 0"),

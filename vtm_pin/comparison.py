@@ -452,12 +452,15 @@ def warning_line(comparison: Comparison) -> str | None:
         )
     if best.fits:
         return None
-    lead = (
-        f"no model class fits the table; using {best.name}, the plausible, determined class "
-        "whose figures fall least short"
-        if comparison.none_fits
-        else f"the chosen class {best.name} does not fit"
-    )
+    if len(comparison.classes) == 1:
+        lead = f"the figures fitted ({best.description}) do not fit the table"
+    elif comparison.none_fits:
+        lead = (
+            f"no model class fits the table; using {best.name}, the plausible, determined "
+            "class whose figures fall least short"
+        )
+    else:
+        lead = f"the chosen class {best.name} does not fit"
     return f"{lead}: {'; '.join(best.reasons)}"
 
 
