@@ -17,6 +17,16 @@ ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "scenarios"
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+#: The joints of the UR arms, in model order.
+UR_JOINTS = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+
 _CACHE: dict[str, Robot] = {}
 
 

@@ -16,6 +16,7 @@ import pandas as pd
 import pinocchio as pin
 import pytest
 import yaml
+from conftest import UR_JOINTS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -29,14 +30,6 @@ from vtm_pin.study import find_study, load_study
 from vtm_pin.study_runner import format_study, run_study
 
 TOLERANCE = 1e-8
-UR_JOINTS = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
 
 
 def assert_same_ends(scalar: vp.SimulationResult, batched: vp.SimulationResult) -> None:
@@ -106,16 +99,21 @@ def test_shipped_scenarios_agree(name: str) -> None:
     assert_same_run(scalar, batched)
 
 
-@pytest.mark.parametrize("law", ["short_circuit", "viscous", "both"])
+@pytest.mark.parametrize("law", ["short_circuit", "viscous", "both", "failed_brake"])
 def test_braking_laws_that_decelerate_hardest_at_the_start_agree(law: str) -> None:
     """The motors' short-circuit braking and the viscous brake law (issue 23) are stepped by
-    the batched engine: every sample within 1e-8 of the scalar engine's, at 3 speeds."""
+    the batched engine: every sample within 1e-8 of the scalar engine's, at 3 speeds.
+
+    ``failed_brake``: the elbow has no brake, only its motor's short-circuit braking (through
+    its gear ratio, as on every braked joint)."""
     raw = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
     raw["brakes"] = {
         j: {"delay": 0.02, "sliding_torque": 3.0, "static_torque": 3.6}
         for j in ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
     } | {j: {"ideal": True} for j in ("wrist_1_joint", "wrist_2_joint", "wrist_3_joint")}
-    if law in ("short_circuit", "both"):
+    if law == "failed_brake":
+        raw["brakes"]["elbow_joint"] = None
+    if law in ("short_circuit", "both", "failed_brake"):
         raw["drives"] = {
             j: {"gear_ratio": 101, "rotor_inertia": 1e-4 if i < 3 else 3e-5}
             | {"short_circuit_torque": 0.4, "short_circuit_speed": 150.0}
@@ -136,7 +134,7 @@ def test_braking_laws_that_decelerate_hardest_at_the_start_agree(law: str) -> No
         # The viscous torque's slope has a kink at rest (Coulomb's past it): the steps the
         # error control takes near the crossing follow round-off, so their count may differ;
         # every sample (on the 2 ms output grid), event and the work agree within 1e-8.
-        assert_same_run(scalar, result, same_steps=law == "short_circuit")
+        assert_same_run(scalar, result, same_steps=law in ("short_circuit", "failed_brake"))
         if law != "viscous":
             assert scalar.short_circuit_work[-1] > 0.0
 

@@ -24,7 +24,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import vtm_pin as vp
-from vtm_pin.bounds import BoundSpec, Uncertainty, upper_bounds
+from vtm_pin.bounds import BoundSpec, Uncertainty, shortfall_allowance, upper_bounds, variants
 from vtm_pin.calibration import calibrate, make_figures, priors, simulate_row
 from vtm_pin.calibration_report import calibrated_fragment, uncertainty_section
 from vtm_pin.pipeline import run
@@ -304,3 +304,90 @@ def test_uncertainty_section_inflates_by_chi2_and_names_fixed_figures(tmp_path):
     assert section["bias"]["stop_time"] == pytest.approx(
         np.mean([(r.time - r.row.stop_time) / r.row.stop_time for r in calibration.rows])
     )
+
+
+@settings(max_examples=200, deadline=None, derandomize=True, database=None)
+@given(shortfall=st.floats(-0.9, 0.5), published=st.floats(1e-3, 1e3))
+def test_the_shortfall_allowance_brings_a_short_figure_back_to_the_published_one(
+    shortfall, published
+):
+    """A figure short by r = (s - p) / p < 0 plus its allowance is p (1e-12 relative: only
+    round-off); a figure that is not short gets nothing."""
+    simulated = published * (1.0 + shortfall)
+    bounded = simulated + shortfall_allowance(shortfall, simulated)
+    assert bounded == pytest.approx(max(published, simulated), rel=1e-12)
+
+
+def test_a_figure_of_zero_variance_is_not_moved_and_adds_nothing(tmp_path):
+    """Its covariance row is 0: no variant run, and the bound is that of the other figure."""
+    uncertainty = Uncertainty(
+        names=("fixed", "free"),
+        values=np.array([0.05, 2.0]),
+        keys=(("brakes.j.delay",), ("brakes.j.sliding_torque",)),
+        covariance=np.diag([0.0, 0.04]),
+        bias={},
+        source="test",
+    )
+    assert list(uncertainty.moved) == [1]
+    raw = {"brakes": {"j": {"delay": 0.05, "sliding_torque": 2.0}}}
+    runs = variants(raw, BoundSpec(0.95, 0.0), uncertainty)
+    assert len(runs) == 2 and runs[1]["brakes"]["j"] == {"delay": 0.05, "sliding_torque": 2.2}
+    upper = upper_bounds(
+        {"stop_angle": 1.0},
+        [{"stop_angle": 1.0}, {"stop_angle": 0.9}],
+        BoundSpec(0.95, 0.0),
+        uncertainty,
+    )
+    # g = (0.9 - 1.0) / 0.2 = -0.5 per N m; sigma 0.2 N m: spread 0.1 rad
+    assert upper["stop_angle_upper"] == pytest.approx(1.0 + BoundSpec().z * 0.1, rel=1e-12)
+
+
+def test_a_calibration_figure_of_zero_is_refused_in_one_line(tmp_path, capsys):
+    """A bound moves a figure by scaling it: the schema keeps every value > 0."""
+    section = {
+        "figures": [{"name": "delay", "value": 0.0, "keys": ["brakes.shoulder_pan_joint.delay"]}],
+        "covariance": [[1e-4]],
+    }
+    raw = prediction(tmp_path, bounds={}, include=False)
+    raw["calibration"] = section
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    from vtm_pin.cli import main
+
+    assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'calibration.figures[0].value': 0.0 must be > 0" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_bound_variant_that_has_not_stopped_gives_no_bound_and_a_flag(tmp_path):
+    """The nominal stop ends 20 ms before the run does; with every brake 60 % weaker the stop
+    takes longer than that, so the worn run still moves at the end."""
+    held = ("shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
+    brakes = {"shoulder_pan_joint": {"sliding_torque": 60.0, "delay": 0.03}}
+    brakes |= {joint: {"ideal": True, "delay": 0.03} for joint in held}
+    raw = prediction(tmp_path, include=False, brakes=brakes)
+    nominal = run(build_scenario(raw, base_dir=tmp_path)).figures
+    assert nominal.status == "ok"
+    raw["duration"] = nominal.metrics["robot_stop_time"] + 0.02
+    raw["bounds"] = {"brake_wear": 0.6}
+    with pytest.warns(vp.VtmWarning, match="no upper bound is given"):
+        figures = run(build_scenario(raw, base_dir=tmp_path)).figures
+    assert figures.status == "ok"
+    assert "bounds_not_stopped" in [f.kind for f in figures.flags]
+    assert figures.upper and all(value is None for value in figures.upper.values())
+
+
+def test_command_line_integrator_options_reach_the_bounds_variant_runs(tmp_path):
+    import argparse
+
+    from vtm_pin.cli import _with_integrator_options
+    from vtm_pin.figures import bound_variants
+
+    raw = prediction(tmp_path, bounds={"brake_wear": 0.1}, include=False)
+    scenario = build_scenario(raw, base_dir=tmp_path)
+    options = {"integrator": None, "dt": None, "rtol": 1e-6, "atol": 1e-8, "max_steps": None}
+    changed = _with_integrator_options(scenario, argparse.Namespace(**options))
+    assert changed.integrator.rtol == 1e-6
+    (worn,) = bound_variants(changed)
+    assert worn.integrator == changed.integrator

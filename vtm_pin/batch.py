@@ -39,6 +39,7 @@ import numpy as np
 import pinocchio as pin
 
 from .brakes import ROUNDOFF, BrakeMode, StateEventKind
+from .drives import short_circuit_torque
 from .exceptions import SimulationError, StepLimitError, VtmError
 from .friction import Coulomb, Viscous
 from .integrators import DOP853, Segment
@@ -307,8 +308,9 @@ class BatchEngine:
         slip = np.maximum(sign * motor, 0.0)  # [rad/s] motor side, as Viscous.kinetic
         kinetic = lanes.torque[rows] * (1.0 + slip * lanes.viscous[rows])
         tau = -sign * (ratio * (factor * kinetic))
-        x = motor / lanes.short_speed[rows]
-        tau_short = -ratio * lanes.short_torque[rows] * (2.0 * x / (1.0 + x * x))
+        tau_short = short_circuit_torque(
+            ratio, lanes.short_torque[rows], lanes.short_speed[rows], v
+        )
         a, lam = self.dynamics.accelerations(q, v, tau + tau_short, lanes.locked[rows])
         out = np.zeros_like(y)
         out[:, :n] = v
@@ -410,12 +412,12 @@ class BatchEngine:
         lanes.sign[b] = 0.0
         lanes.event_kind[b] = 0
         lanes.short_torque[b], lanes.short_speed[b] = phase.shorted()  # type: ignore[attr-defined]
+        lanes.ratio[b] = phase.robot.gear_ratio  # type: ignore[attr-defined]
         machine = phase.machine  # type: ignore[attr-defined]
         if machine is None:
             return
         modes, engaged = phase.modes, phase.engaged  # type: ignore[attr-defined]
         for j, brake in machine.brakes.items():
-            lanes.ratio[b, j] = machine.ratio[j]
             lanes.engaged[b, j] = engaged.get(j, 0.0)
             if not brake.ideal:
                 friction = brake.friction

@@ -3,7 +3,7 @@
 A scenario (or a study's base) asks for bounds with ``bounds: {confidence, brake_wear}``. The
 bound of a figure f (T_robot, the tested joint's angle and time, S_s) is
 
-    f_upper = max(f, f_worn) + z sqrt(g^T C g) + max(0, -b) f_worn
+    f_upper = max(f, f_worn) + z sqrt(g^T C g) + max(0, -b) / (1 + b) f_worn
 
 * f_worn: the figure with every brake torque (sliding and static) scaled by 1 - brake_wear:
   brakes wear, and makers ask users to re-check stopping distances every year;
@@ -17,7 +17,8 @@ bound of a figure f (T_robot, the tested joint's angle and time, S_s) is
 * b: the calibration's shortfall of the times (for times) or distances (for angles and S_s),
   the most negative (simulated - published) / published of its rows (its mean, the residual
   bias, where a section gives no shortfall): a model whose times came out short gets the
-  worst of it back, the conservative choice.
+  worst of it back (a figure short by b reaches the published one times 1 / (1 + b)), the
+  conservative choice.
 
 T, S and S_p follow from the bounded T_robot and S_s through their formulas. Without a
 ``calibration`` section only the wear allowance applies, and the bound says so. The bound is
@@ -102,9 +103,16 @@ class Uncertainty:
     def steps(self) -> np.ndarray:
         """Each figure's finite-difference step: 1 sigma, at most :data:`MAX_STEP` of its value.
 
-        A figure the table barely constrains would otherwise be moved out of physical range.
+        A figure the table barely constrains would otherwise be moved out of physical range. A
+        figure of zero variance has step 0: it is not moved (its covariance row is 0, so it
+        adds nothing to a bound).
         """
         return np.minimum(self.sigma, MAX_STEP * np.abs(self.values))
+
+    @property
+    def moved(self) -> np.ndarray:
+        """Indices of the figures that are moved (step > 0), in order."""
+        return np.flatnonzero(self.steps > 0.0)
 
 
 def parse_bounds(
@@ -177,12 +185,13 @@ def _is_covariance(c: np.ndarray) -> bool:
 def variants(
     raw: Mapping[str, Any], spec: BoundSpec, uncertainty: Uncertainty | None
 ) -> list[dict[str, Any]]:
-    """The scenarios a bound needs, after the nominal one: worn, then one per figure.
+    """The scenarios a bound needs, after the nominal one: worn, then one per moved figure.
 
     ``raw`` is the nominal scenario with its fragments and robot data merged (every brake
     named). The worn scenario scales every brake's sliding and static torque by 1 -
-    ``brake_wear``; each figure's scenario moves that figure by one standard deviation from
-    the worn one (its keys scaled by (value + sigma) / value).
+    ``brake_wear``; each figure's scenario moves that figure by its step (one standard
+    deviation, see :attr:`Uncertainty.steps`) from the worn one (its keys scaled by
+    (value + step) / value). Figures of zero variance are not moved (:attr:`Uncertainty.moved`).
     """
     worn = copy.deepcopy(dict(raw))
     factor = 1.0 - spec.brake_wear
@@ -193,12 +202,10 @@ def variants(
     out = [worn]
     if uncertainty is None:
         return out
-    for value, step, keys in zip(
-        uncertainty.values, uncertainty.steps, uncertainty.keys, strict=True
-    ):
+    for i in uncertainty.moved:
         moved = copy.deepcopy(worn)
-        ratio = (value + step) / value
-        for path in keys:
+        ratio = (uncertainty.values[i] + uncertainty.steps[i]) / uncertainty.values[i]
+        for path in uncertainty.keys[i]:
             _scale(moved, path.split("."), ratio)
         out.append(moved)
     return out
@@ -236,20 +243,38 @@ def upper_bounds(
         if f is None or fw is None or any(m.get(name) is None for m in moved):
             out[f"{name}_upper"] = None
             continue
-        spread = 0.0
-        if uncertainty is not None and moved:
-            g = np.array(
-                [
-                    (float(m[name] or 0.0) - fw) / s
-                    for m, s in zip(moved, uncertainty.steps, strict=True)
-                ]
-            )
-            spread = float(math.sqrt(max(0.0, float(g @ uncertainty.covariance @ g))))
-        short = 0.0
+        spread, short = 0.0, 0.0
         if uncertainty is not None:
+            spread = _spread([float(m[name] or 0.0) for m in moved], fw, uncertainty)
             short = uncertainty.shortfall.get(kind, min(0.0, uncertainty.bias.get(kind, 0.0)))
-        out[f"{name}_upper"] = max(f, fw) + spec.z * spread + max(0.0, -short) * fw
+        out[f"{name}_upper"] = max(f, fw) + spec.z * spread + shortfall_allowance(short, fw)
     return out
+
+
+def _spread(moved: Sequence[float], worn: float, uncertainty: Uncertainty) -> float:
+    """sqrt(g^T C g) of one figure from its moved runs (one per :attr:`Uncertainty.moved`)."""
+    index = uncertainty.moved
+    if index.size == 0:
+        return 0.0
+    g = (np.asarray(moved) - worn) / uncertainty.steps[index]
+    c = uncertainty.covariance[np.ix_(index, index)]
+    return float(math.sqrt(max(0.0, float(g @ c @ g))))
+
+
+def shortfall_allowance(shortfall: float, figure: float) -> float:
+    """What a bound adds back for a calibration that came out short [units of ``figure``].
+
+    A simulated figure s short of the published by the relative residual r = (s - p) / p < 0
+    reaches the published only when multiplied by 1 / (1 + r): the allowance is
+    -r / (1 + r) times the figure (0 for r >= 0).
+
+    Args:
+        shortfall: The relative residual r [-], > -1.
+        figure: The (worn) figure it is added to.
+    """
+    if shortfall >= 0.0:
+        return 0.0
+    return -shortfall / (1.0 + shortfall) * figure
 
 
 def describe(spec: BoundSpec, uncertainty: Uncertainty | None) -> dict[str, Any]:

@@ -582,7 +582,8 @@ def _with_integrator_options(scenario: Scenario, args: argparse.Namespace) -> Sc
     except ScenarioError as exc:
         option = "--" + exc.key.split(".")[-1].replace("_", "-")
         raise ScenarioError("command line", option, exc.problem) from exc
-    return dataclasses.replace(scenario, integrator=integrator)
+    raw = {**scenario.raw, "integrator": spec}  # the bounds' variant runs use it too
+    return dataclasses.replace(scenario, integrator=integrator, raw=raw)
 
 
 class _ProgressBars:

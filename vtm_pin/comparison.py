@@ -430,7 +430,7 @@ def _run_job(
 
 def recommend(fits: Sequence[ClassFit], short_tolerance: float) -> Comparison:
     """The simplest class that fits, else the least short plausible one (ties: lower AIC)."""
-    order = sorted(fits, key=lambda c: (len(c.calibration.figures), list(fits).index(c)))
+    order = sorted(fits, key=lambda c: (c.free, c.aic, list(fits).index(c)))
     fitting = [c for c in order if c.fits]
     if fitting:
         return Comparison(tuple(fits), fitting[0].name, False, short_tolerance)

@@ -134,8 +134,23 @@ class DriveRamp(DriveLaw):
         return np.asarray(np.clip(tau, -self.limit, self.limit))
 
 
+def short_circuit_torque(
+    ratio: np.ndarray, peak_torque: np.ndarray, peak_speed: np.ndarray, v: np.ndarray
+) -> np.ndarray:
+    """Joint-side short-circuit braking torques -N T(N v) [N m] (see :class:`ShortCircuit`).
+
+    Args:
+        ratio: Gear ratios N [-].
+        peak_torque: T_pk, motor side [N m] (0: none).
+        peak_speed: omega_pk, motor side [rad/s], > 0.
+        v: Joint rates [rad/s]; the arrays broadcast.
+    """
+    x = ratio * v / peak_speed
+    return np.asarray(-ratio * peak_torque * (2.0 * x / (1.0 + x * x)))
+
+
 @dataclass(frozen=True, eq=False)
-class ShortCircuit(DriveLaw):
+class ShortCircuit:
     r"""Motor short-circuit (dynamic) braking: the windings shorted once the drive drops out.
 
     A permanent-magnet synchronous motor whose terminals are shorted brakes with the torque of
@@ -195,24 +210,7 @@ class ShortCircuit(DriveLaw):
 
     def joint_torque(self, v: np.ndarray) -> np.ndarray:
         """Joint-side torques -N T(N v) [N m] at joint rates ``v`` [rad/s] (any shape (..., k))."""
-        x = self.ratio * v / self.peak_speed
-        return -self.ratio * self.peak_torque * (2.0 * x / (1.0 + x * x))
-
-    def torques(
-        self,
-        model: pin.Model,
-        data: pin.Data,
-        t: float,
-        q_f: np.ndarray,
-        v_f: np.ndarray,
-    ) -> np.ndarray:
-        """Short-circuit braking torques [N m] of the free joints."""
-        return np.asarray(self.joint_torque(v_f))
-
-    @property
-    def acts(self) -> bool:
-        """Whether some joint's motor brakes."""
-        return bool(self.present.any())
+        return short_circuit_torque(self.ratio, self.peak_torque, self.peak_speed, v)
 
     def describe(self, joints: tuple[str, ...]) -> dict[str, dict[str, float]]:
         """Figures of the joints whose motors brake, for summary.json (motor side, SI)."""

@@ -215,7 +215,9 @@ def bounded(
     """``figures`` with their upper bounds, from the runs of :func:`bound_variants`' scenarios.
 
     A worn state whose brakes cannot hold the load is flagged (``worn_brake_cannot_hold``):
-    its bound describes a collapsing arm.
+    its bound describes a collapsing arm. A variant that has not stopped by the end of the run
+    gives no bound at all (every ``*_upper`` None, flagged ``bounds_not_stopped``): its figures
+    are only lower bounds.
     """
     from .stopping import compute_stopping_report
 
@@ -228,6 +230,21 @@ def bounded(
     )
     upper |= derived_uppers(scenario.separation, figures.metrics, upper)
     flags = figures.flags
+    moving = [k for k, m in enumerate(measured) if m.status != "ok"]
+    if moving:
+        upper = dict.fromkeys(upper)
+        flags = (
+            *flags,
+            Flag(
+                "bounds_not_stopped",
+                f"{len(moving)} of the bounds' {len(measured)} variant runs (worn brakes, moved "
+                "calibrated figures) still move at the end of the run: no upper bound is given; "
+                "lengthen duration",
+                (),
+                float(len(moving)),
+                0.0,
+            ),
+        )
     worn = measured[0]
     if not worn.holds and figures.holds:
         weak = next(f for f in worn.flags if f.kind in NOT_HELD)

@@ -63,6 +63,14 @@ class FrictionLaw(ABC):
     def breakaway_torque(self) -> float:
         """Static (breakaway) torque at full normal force [N m]; >= the kinetic torque at rest."""
 
+    @property
+    def least_kinetic(self) -> float:
+        """The smallest kinetic torque at full normal force over all slip speeds [N m].
+
+        It is what is left to stop a slowly moving joint.
+        """
+        return self.kinetic(0.0)
+
     def factor(self, elapsed: float) -> float:
         """Normal-force factor in [0, 1], ``elapsed`` seconds after engagement."""
         if self.ramp == 0.0:
@@ -114,6 +122,11 @@ class Coulomb(FrictionLaw):
     def breakaway_torque(self) -> float:
         """The static torque [N m]."""
         return self.sliding_torque if self.static_torque is None else self.static_torque
+
+    @property
+    def least_kinetic(self) -> float:
+        """tau_c: Coulomb's at every speed, Stribeck's far from rest, the viscous law's at rest."""
+        return self.sliding_torque
 
     def describe(self) -> dict[str, Any]:
         """The law and its figures, for summary.json (SI units, motor side)."""

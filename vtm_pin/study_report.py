@@ -111,6 +111,8 @@ _ROWS = (
     ("robot_stop_time", "robot's stopping time\nT_robot [s]"),
 )
 _STYLES = ["-", "--", ":", "-."]
+#: Legend of the cases whose brakes cannot hold or stop the load.
+FLAG_LABEL = "FLAGGED: brake cannot hold"
 _CSS = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222;
   padding: 0 1em; line-height: 1.4; }
@@ -419,30 +421,16 @@ def _flagged(ax: Axes, part: pd.DataFrame, column: str) -> None:
     if "flags" not in part.columns or part.empty:
         return
     flags = _flag_texts(part).to_numpy()
-    collapse = np.array([any(k in f for k in NOT_HELD) for f in flags], dtype=bool)
+    collapse = np.array([_not_held(f) for f in flags], dtype=bool)
     other = (flags != "") & ~collapse
     x, y = _speed_percent(part), _values(part, column)
-    if collapse.any():
-        ax.scatter(
-            x[collapse],
-            y[collapse],
-            marker="x",
-            color="red",
-            s=50,
-            zorder=5,
-            label="FLAGGED: brake cannot hold",
-        )
-    if other.any():
-        ax.scatter(
-            x[other],
-            y[other],
-            marker="^",
-            facecolors="none",
-            edgecolors="darkorange",
-            s=40,
-            zorder=5,
-            label="flagged (see report)",
-        )
+    styles: tuple[tuple[np.ndarray, dict[str, Any]], ...] = (
+        (collapse, {"marker": "x", "color": "red", "s": 50, "label": FLAG_LABEL}),
+        (other, {"marker": "^", "facecolors": "none", "edgecolors": "darkorange", "s": 40}),
+    )
+    for mask, style in styles:
+        if mask.any():
+            ax.scatter(x[mask], y[mask], zorder=5, **{"label": "flagged (see report)", **style})
 
 
 def _scatter(ax: Axes, part: pd.DataFrame, column: str, layout: _Layout) -> None:
@@ -764,7 +752,7 @@ def _section_flagged(summary: Mapping[str, Any], table: pd.DataFrame) -> str:
         parts.append("</section>")
         return "\n".join(parts)
     flagged = table[flags != ""]
-    collapse = int(flags.map(lambda f: any(k in f for k in NOT_HELD)).sum())
+    collapse = int(flags.map(_not_held).sum())
     falls = (
         f"; in {collapse} a brake cannot hold the load and the arm collapses" if collapse else ""
     )
@@ -1050,9 +1038,14 @@ def _flag_counts(table: pd.DataFrame) -> dict[str, int]:
     """Cases whose brakes cannot hold the load (``cannot_hold``), and all flagged cases."""
     flags = _flag_texts(table)
     return {
-        "cannot_hold": int(flags.map(lambda f: any(k in f for k in NOT_HELD)).sum()),
+        "cannot_hold": int(flags.map(_not_held).sum()),
         "flagged": int((flags != "").sum()),
     }
+
+
+def _not_held(flags: str) -> bool:
+    """Whether a case's flags (``;``-separated kinds) say a brake cannot hold or stop it."""
+    return any(kind in NOT_HELD for kind in flags.split(";"))
 
 
 def _flag_texts(table: pd.DataFrame) -> pd.Series:

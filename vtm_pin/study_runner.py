@@ -46,6 +46,7 @@ from .batch import ENGINES, PARTS
 from .exceptions import OutputError, StudyError, VtmError, VtmWarning
 from .figures import DEFINITIONS as FIGURE_DEFINITIONS
 from .figures import METRICS
+from .flags import KINDS as FLAG_KINDS
 from .robot import RobotCache
 from .staging import write_staged
 from .study import Case, Study
@@ -71,10 +72,8 @@ DEFINITIONS = {
     "end of the run (lengthen duration); error: <message>: the case failed.",
     "holds": "true: every brake's static torque holds its joint's gravity load throughout the "
     "stop, and its sliding torque stops it; false: some brake cannot (see flags).",
-    "flags": "Broken assumptions behind the case's figures (brake_cannot_hold, "
-    "brake_cannot_stop, worn_brake_cannot_hold, joint_slips, not_stopped, payload_above_rated, "
-    "payload_implausible, tool_speed_implausible), ; separated; each case record "
-    "(cases/<case>.json) has the messages.",
+    "flags": f"Broken assumptions behind the case's figures ({', '.join(FLAG_KINDS)}), ; "
+    "separated; each case record (cases/<case>.json) has the messages.",
     **FIGURE_DEFINITIONS,
     "stop_time.<joint>": "That joint's stopping time [s].",
     "stop_angle.<joint>": "That joint's travel after the signal, |q(end) - q(signal)| [rad].",
