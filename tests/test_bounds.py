@@ -167,15 +167,23 @@ def test_bounds_refuse_an_undetermined_figure_in_one_line(tmp_path, capsys):
         "covariance": [[0.1]],
         "undetermined": ["sliding.elbow_joint"],
     }
-    raw = prediction(tmp_path, bounds={}, include=False)
-    raw["calibration"] = section
-    path = tmp_path / "s.yaml"
-    path.write_text(yaml.safe_dump(raw))
+    err = refusal(tmp_path, capsys, section)
+    assert "'bounds'" in err and "sliding.elbow_joint" in err, err
+
+
+def refusal(folder: Path, capsys, section: dict) -> str:
+    """The one line ``vtm-pin run`` refuses a bounded scenario with this calibration in."""
     from vtm_pin.cli import main
 
-    assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 1
+    raw = prediction(folder, bounds={}, include=False)
+    raw["calibration"] = section
+    path = folder / "s.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    assert main(["run", str(path), "--out", str(folder / "o")]) == 1
+    assert not (folder / "o").exists()
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "'bounds'" in err[0] and "sliding.elbow_joint" in err[0], err
+    assert len(err) == 1, err
+    return err[0]
 
 
 def prediction(folder: Path, bounds=None, include=True, brakes=None) -> dict:
@@ -348,16 +356,8 @@ def test_a_calibration_figure_of_zero_is_refused_in_one_line(tmp_path, capsys):
         "figures": [{"name": "delay", "value": 0.0, "keys": ["brakes.shoulder_pan_joint.delay"]}],
         "covariance": [[1e-4]],
     }
-    raw = prediction(tmp_path, bounds={}, include=False)
-    raw["calibration"] = section
-    path = tmp_path / "s.yaml"
-    path.write_text(yaml.safe_dump(raw))
-    from vtm_pin.cli import main
-
-    assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "'calibration.figures[0].value': 0.0 must be > 0" in err[0], err
-    assert not (tmp_path / "o").exists()
+    err = refusal(tmp_path, capsys, section)
+    assert "'calibration.figures[0].value': 0.0 must be > 0" in err, err
 
 
 def test_a_bound_variant_that_has_not_stopped_gives_no_bound_and_a_flag(tmp_path):

@@ -39,7 +39,7 @@ from functools import cache
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import SCENARIOS, robot
+from conftest import SCENARIOS, UR_JOINTS, robot
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -57,14 +57,7 @@ ROBOTS = ("planar_3r", "ur5", "ur10", "panda", "rx160l")
 #: Drive figures of the shipped category-0 scenarios (gear ratio, rotor inertia [kg m^2]) for
 #: the example-robot-data arms, which have none; planar_3r has none (ratio 1), rx160l has its
 #: own in robots/rx160l.yaml. Brake torques are motor side x these ratios on the joint side.
-_UR_JOINTS = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
+_UR_JOINTS = UR_JOINTS
 DRIVES = {
     "ur5": {j: Drive(101.0, 3e-5) for j in _UR_JOINTS},
     "ur10": {j: Drive(101.0, 1e-4 if i < 3 else 3e-5) for i, j in enumerate(_UR_JOINTS)},

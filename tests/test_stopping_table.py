@@ -5,6 +5,7 @@ import math
 from pathlib import Path
 
 import pytest
+from conftest import UR_JOINTS
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -23,14 +24,7 @@ from vtm_pin.stopping_table import (
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 UR5_TABLE = DATA / "ur5_cb3_stopping_cat0.csv"
-UR5_JOINTS = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
+UR5_JOINTS = UR_JOINTS
 #: Conversions are a multiplication or a division: a few ulps [-, relative].
 CONVERSION_RTOL = 1e-15
 #: The notes round 183 deg/s to 3.194 rad/s: half a unit of their last digit [rad/s].

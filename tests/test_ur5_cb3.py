@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import UR_JOINTS
 
 from vtm_pin import annex_b
 from vtm_pin.annex_b import Conditions, compute_test_state, horizontal_reach, max_reach
@@ -20,14 +21,7 @@ from vtm_pin.pipeline import run
 from vtm_pin.robot import load_robot
 from vtm_pin.scenario import build_scenario
 
-JOINTS = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
+JOINTS = UR_JOINTS
 #: UR5 (CB3) DH parameters [m, rad] (UR's table; the CB3 manual's "serie 3").
 D = (0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823)
 A = (0.0, -0.425, -0.39225, 0.0, 0.0, 0.0)
