@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import stat
 import sys
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
@@ -520,6 +521,8 @@ def _default_tool_frame(model: pin.Model) -> str:
 def _build_from_urdf(path: Path) -> pin.Model:
     """Parse a URDF; an error urdfdom reports (even one it then skips) refuses the file."""
     try:
+        if not stat.S_ISREG(path.stat().st_mode):  # a named pipe would hang the readers
+            raise RobotLoadError(str(path), "is not a regular file (a folder, pipe or device)")
         with path.open("rb") as file:
             data = file.read(MAX_URDF_BYTES + 1)
         if len(data) > MAX_URDF_BYTES:

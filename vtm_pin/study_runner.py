@@ -10,33 +10,26 @@ same command computes only the cases missing there; a changed study is refused r
 mixed with old results. The results table, its summary and the report are written once, by
 the driver process only, when every case is done (:func:`run_study`).
 
-Executors: one worker runs the cases in the driver process; more use a process pool
-(``forkserver`` where available: the workers fork from a server that has imported vtm_pin and
-Pinocchio once), with BLAS / OpenMP threads pinned to 1 and Ctrl-C left to the driver. With a
-scheduler address the cases go to an existing ``dask.distributed`` cluster (the ``cluster``
-extra). A worker loads each robot model once (a :class:`~vtm_pin.robot.RobotCache`), not once per
-case.
+Executors: one worker runs the cases in the driver process; more use a process pool, and a
+scheduler address sends them to a Dask cluster (:mod:`vtm_pin.executors`). A worker loads each
+robot model once (a :class:`~vtm_pin.robot.RobotCache`), not once per case.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
-import multiprocessing
 import os
 import platform
 import re
-import signal
 import statistics
 import sys
 import tempfile
-import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -44,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 from .batch import ENGINES, PARTS
 from .exceptions import OutputError, StudyError, VtmError, VtmWarning
+from .executors import connect, dask_workers, on_dask, on_pool
 from .figures import DEFINITIONS as FIGURE_DEFINITIONS
 from .figures import METRICS
 from .flags import KINDS as FLAG_KINDS
@@ -57,10 +51,6 @@ if TYPE_CHECKING:
 
 #: Files of a study's output folder.
 CASES_FOLDER, STATE_FILE = "cases", "study.json"
-#: Environment variables that pin a worker's BLAS / OpenMP pools to one thread.
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-#: Modules the pool's fork server imports once, before it forks the workers.
-PRELOAD = ["vtm_pin.study_runner", "vtm_pin.pipeline", "vtm_pin.annex_b", "example_robot_data"]
 #: Most flagged cases whose messages summary.json lists (the table flags every case).
 MAX_FLAGGED_SUMMARY = 100
 #: What each column of the results table means besides the figures of
@@ -414,7 +404,7 @@ def run_study(
             "--engine",
             f"'{engine}' is not an engine; allowed: {', '.join(ENGINES)}",
         )
-    client = _connect(scheduler) if scheduler else None  # before anything is written
+    client = connect(scheduler) if scheduler is not None else None  # before anything is written
     cases = study.cases()
     store = CaseStore(out, study)
     store.open({case.id for case in cases})
@@ -487,6 +477,7 @@ def _chunks(tasks: Sequence[CaseTask], workers: int, engine: str) -> list[list[C
     evenly loaded, and an interruption loses at most the batches under way.
     """
     size = 1 if engine == "scalar" else min(BATCH_CASES, math.ceil(len(tasks) / (4 * workers)))
+    size = max(size, 1)
     return [list(tasks[i : i + size]) for i in range(0, len(tasks), size)]
 
 
@@ -494,142 +485,14 @@ def _execute(
     tasks: Sequence[CaseTask], workers: int, client: Any | None, engine: str
 ) -> Iterator[dict]:
     """Run the tasks; yields each record as soon as its piece is done (in any order)."""
-    if not tasks:
-        if client is not None:
-            client.close()
-        return iter(())
+    work = functools.partial(run_cases, engine=engine)
     if client is not None:
-        return _on_dask(_chunks(tasks, 4 * _dask_workers(client), engine), client, engine)
+        chunks = _chunks(tasks, 4 * dask_workers(client), engine) if tasks else []
+        return on_dask(chunks, work, client)
     chunks = _chunks(tasks, workers, engine)
-    if workers <= 1 or len(chunks) == 1:
-        return (record for chunk in chunks for record in run_cases(chunk, engine))
-    return _on_pool(chunks, min(workers, len(chunks)), engine)
-
-
-def _on_pool(chunks: Sequence[list[CaseTask]], workers: int, engine: str) -> Iterator[dict]:
-    methods = multiprocessing.get_all_start_methods()
-    context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    if "forkserver" in methods:
-        context.set_forkserver_preload(PRELOAD)
-    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
-    os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))  # inherited by the workers
-    try:
-        executor = ProcessPoolExecutor(
-            workers, mp_context=context, initializer=_init_worker, initargs=(os.getpid(),)
-        )
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-    return _drain(executor, chunks, workers, engine)
-
-
-def _drain(
-    executor: ProcessPoolExecutor,
-    chunks: Sequence[list[CaseTask]],
-    workers: int,
-    engine: str,
-) -> Iterator[dict]:
-    """Keep the pool fed with a few pieces per worker; yield records as they complete."""
-    pending: set[Future[list[dict]]] = set()
-    queue = iter(chunks)
-    try:
-        for chunk in queue:
-            pending.add(executor.submit(run_cases, chunk, engine))
-            if len(pending) >= 4 * workers:
-                break
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for future in done:
-                yield from future.result()
-                more = next(queue, None)
-                if more is not None:
-                    pending.add(executor.submit(run_cases, more, engine))
-    except BrokenProcessPool as exc:  # from a result, or from submitting to the broken pool
-        raise StudyError(
-            "",
-            "",
-            "a worker process died (out of memory, or killed); the finished cases are stored: "
-            "run the same command again to continue",
-        ) from exc
-    finally:
-        executor.shutdown(wait=False, cancel_futures=True)
-
-
-def _init_worker(driver: int) -> None:
-    """A pool worker: Ctrl-C is the driver's to handle; the worker ends when the driver dies.
-
-    A driver killed outright (SIGKILL) cannot shut its pool down; a watchdog thread ends the
-    worker within :data:`WATCHDOG_PERIOD` seconds instead of leaving it to run.
-    """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_watch, args=(driver,), daemon=True).start()
-
-
-#: How often a pool worker checks that its driver is alive [s].
-WATCHDOG_PERIOD = 1.0
-
-
-def _watch(driver: int) -> None:
-    while True:
-        time.sleep(WATCHDOG_PERIOD)
-        try:
-            os.kill(driver, 0)
-        except ProcessLookupError:
-            os._exit(1)
-        except PermissionError:  # alive, owned by another user (a recycled pid): keep going
-            continue
-
-
-#: Seconds to wait for a Dask scheduler to answer.
-CONNECT_TIMEOUT = 10.0
-
-
-def _connect(scheduler: str) -> Any:
-    """A client of the Dask scheduler at ``scheduler`` (``tcp://host:port``).
-
-    Raises:
-        StudyError: dask.distributed is missing, the address is malformed, or the scheduler
-            does not answer within :data:`CONNECT_TIMEOUT` seconds.
-    """
-    try:
-        from dask.distributed import Client
-    except ImportError as exc:
-        raise StudyError(
-            "command line", "--scheduler", "needs dask.distributed: pip install 'vtm_pin[cluster]'"
-        ) from exc
-    if not re.fullmatch(r"(tcp|tls|ws|wss|inproc)://[^\s/:]+:\d{1,5}", scheduler):
-        raise StudyError(
-            "command line",
-            "--scheduler",
-            f"'{scheduler}' is not a scheduler address such as tcp://host:8786",
-        )
-    try:
-        return Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise StudyError(
-            "command line",
-            "--scheduler",
-            f"no Dask scheduler answered at {scheduler} within {CONNECT_TIMEOUT:g} s ({exc})",
-        ) from exc
-
-
-def _dask_workers(client: Any) -> int:
-    """Worker processes of the cluster (at least 1)."""
-    return max(1, len(client.scheduler_info().get("workers", {})))
-
-
-def _on_dask(chunks: Sequence[list[CaseTask]], client: Any, engine: str) -> Iterator[dict]:
-    from dask.distributed import as_completed
-
-    try:
-        futures = client.map(run_cases, list(chunks), engine=engine, pure=False)
-        for future in as_completed(futures, loop=client.loop):
-            yield from future.result()
-    finally:
-        client.close()
+    if workers <= 1 or len(chunks) <= 1:
+        return (record for chunk in chunks for record in work(chunk))
+    return on_pool(chunks, work, min(workers, len(chunks)))
 
 
 def _finish(
