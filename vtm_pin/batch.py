@@ -30,9 +30,10 @@ A run that needs anything else (see :func:`fallback_reason`) is run by the scala
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
-from collections.abc import Generator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -246,6 +247,7 @@ class _Run:
 
     def __init__(self, index: int, problem: Problem, integrator: DOP853, transition: str) -> None:
         self.index = index
+        self.transition = transition
         self.loop: Generator[SegmentRequest, Segment, SimulationResult] = hybrid_run(
             problem, integrator, transition=transition, reduced_models=False
         )
@@ -287,6 +289,8 @@ class BatchEngine:
     def __init__(self, model: pin.Model, integrator: DOP853, threads: int = 1) -> None:
         self.dynamics = _Dynamics(model, threads)
         self.integrator = integrator
+        #: Called with each run as soon as it has its outcome (see :func:`run_many`).
+        self.finished: Callable[[_Run], None] | None = None
         self.n = model.nv
         #: Wall time [s] in the dynamics (Pinocchio calls and the solves of locked runs), the runs'
         #: hybrid loops (brake decisions, locks, traces) and event location.
@@ -780,6 +784,11 @@ class BatchEngine:
         begin = time.perf_counter()
         run.advance(segment, error)
         self.seconds["hybrid"] += time.perf_counter() - begin
+        if run.outcome is not None and self.finished is not None:
+            try:
+                self.finished(run)
+            except Exception as exc:  # not the engine's failure: it must not fall back
+                raise _Finished(exc) from exc
 
     def _fail(
         self, lanes: _Lanes, runs: Sequence[_Run], b: int, error: VtmError, finished: list[int]
@@ -876,6 +885,21 @@ class BatchOutcome:
     states: int
 
 
+class _Finished(BaseException):
+    """An error of a run's ``on_done`` call, carried through the engine's own handlers."""
+
+    def __init__(self, error: Exception) -> None:
+        super().__init__(error)
+        self.error = error
+
+
+#: Called with (run index, its result or error, why it went to the scalar engine or None, its
+#: share of its batch's split so far [s] or None) as soon as a run of :func:`run_many` ends.
+OnDone = Callable[
+    [int, "SimulationResult | VtmError", "str | None", "dict[str, float] | None"], None
+]
+
+
 def run_many(
     problems: Sequence[Problem],
     integrators: Sequence[object],
@@ -883,6 +907,7 @@ def run_many(
     transition: str = "kkt",
     engine: str = "batched",
     threads: int = 1,
+    on_done: OnDone | None = None,
 ) -> BatchOutcome:
     """Run many problems; the batched engine takes those it can (see :func:`fallback_reason`).
 
@@ -896,6 +921,11 @@ def run_many(
         engine: ``batched``, or ``scalar`` for one :func:`~vtm_pin.simulation.simulate` per
             run.
         threads: Threads of Pinocchio's parallel algorithms.
+        on_done: Called as soon as each run ends (in the order they end), so that a caller
+            can keep its finished runs if it is interrupted. A batched run's result then has
+            as its ``wall_time`` the batch's time since the batch's previous run ended (these
+            add up to the batch's time); the outcome returned at the end has equal shares of
+            it. An error it raises ends the call.
 
     Raises:
         SimulationError: An unknown engine.
@@ -915,6 +945,8 @@ def run_many(
             groups.setdefault(key, []).append(index)
             continue
         results[index] = _simulate_one(problem, integrators[index], transition)
+        if on_done is not None:
+            on_done(index, results[index], reason, None)  # type: ignore[arg-type]
     seconds = dict.fromkeys(PARTS, 0.0)
     shares: list[dict[str, float] | None] = [None] * len(problems)
     calls = states = 0
@@ -925,15 +957,7 @@ def run_many(
             for i in indices
         ]
         batch = BatchEngine(problems[indices[0]].robot.model, integrator, threads)  # type: ignore[arg-type]
-        for run in runs:
-            batch.advance(run)
-        try:
-            batch.run(runs)
-        except Exception as exc:
-            for run in runs:
-                if run.outcome is None:
-                    run.outcome = _simulate_one(problems[run.index], integrator, transition)
-                    reasons[run.index] = f"the batched engine failed ({type(exc).__name__})"
+        _run_batch(batch, runs, problems, reasons, on_done, started)
         elapsed = time.perf_counter() - started
         parts = {**batch.seconds, "stepping": elapsed - sum(batch.seconds.values())}
         share = {name: value / len(runs) for name, value in parts.items()}
@@ -958,6 +982,64 @@ def run_many(
         calls=calls,
         states=states,
     )
+
+
+def _run_batch(
+    batch: BatchEngine,
+    runs: Sequence[_Run],
+    problems: Sequence[Problem],
+    reasons: list[str | None],
+    on_done: OnDone | None,
+    started: float,
+) -> None:
+    """Drive ``runs`` on ``batch``; if the engine fails, the runs left go to the scalar one."""
+    if on_done is not None:
+        batch.finished = functools.partial(_report, on_done, _Clock(batch, started))
+    try:
+        for run in runs:
+            batch.advance(run)
+        batch.run(runs)
+    except _Finished as stop:
+        raise stop.error from None
+    except Exception as exc:
+        for run in runs:
+            if run.outcome is None:
+                transition = run.transition
+                run.outcome = _simulate_one(problems[run.index], batch.integrator, transition)
+                reasons[run.index] = f"the batched engine failed ({type(exc).__name__})"
+                if on_done is not None:
+                    on_done(run.index, run.outcome, reasons[run.index], None)
+
+
+class _Clock:
+    """A batch's time, handed out to its runs as they end: each gets the time since the last.
+
+    The shares add up to the batch's time (its mean is the batch's time over its runs, as
+    the outcome's equal shares), and each is known when its run ends.
+    """
+
+    def __init__(self, batch: BatchEngine, started: float) -> None:
+        self.batch = batch
+        self.started = started
+        self.parts = dict.fromkeys(PARTS, 0.0)
+
+    def share(self) -> dict[str, float]:
+        """The batch's split [s] since the last call."""
+        elapsed = time.perf_counter() - self.started
+        parts = {**self.batch.seconds, "stepping": elapsed - sum(self.batch.seconds.values())}
+        share = {name: parts[name] - self.parts[name] for name in PARTS}
+        self.parts = parts
+        return share
+
+
+def _report(on_done: OnDone, clock: _Clock, run: _Run) -> None:
+    """Hand a finished batched run to ``on_done``, with its share of the batch's time."""
+    outcome = run.outcome
+    assert outcome is not None
+    share = clock.share()
+    if isinstance(outcome, SimulationResult):
+        outcome = dataclasses.replace(outcome, wall_time=sum(share.values()))
+    on_done(run.index, outcome, None, share)
 
 
 def _simulate_one(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 #: Fixed-base arms of example-robot-data named first when a robot is not found.
 _ARMS = ("ur3", "ur5", "ur10", "panda", "kinova", "xarm7", "z1", "so100")
@@ -25,7 +26,21 @@ def excerpt(value: object, limit: int = EXCERPT_LENGTH) -> str:
 
 
 class VtmError(Exception):
-    """Base class of every error vtm_pin raises on purpose."""
+    """Base class of every error vtm_pin raises on purpose.
+
+    Errors pickle whatever their constructor's arguments (a pool worker's error reaches the
+    driver): they are rebuilt from their message and attributes, not by calling ``__init__``.
+    """
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return _rebuild, (type(self), self.args, self.__dict__)
+
+
+def _rebuild(cls: type[VtmError], args: tuple[Any, ...], state: dict[str, Any]) -> VtmError:
+    error = cls.__new__(cls)
+    error.args = args
+    error.__dict__.update(state)
+    return error
 
 
 class RobotNotFound(VtmError):

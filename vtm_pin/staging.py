@@ -1,42 +1,113 @@
-"""Output folders written all at once: files go to a staging folder, then move in together."""
+"""Output folders: one run at a time, and their files written all at once.
+
+:func:`output_lock` makes an output folder belong to one run: a second run into the same
+folder, from this machine or another sharing the file system, is refused in one line while
+the first holds it. :func:`write_staged` writes a run's files into a staging folder beside the
+output folder and then moves them in together; a staging folder left by a run killed outright
+is removed by the next run into the same folder.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
+from filelock import FileLock, Timeout
+
 from .exceptions import OutputError
+
+#: The lock file inside an output folder (empty; held by the run writing the folder).
+LOCK_FILE = ".vtm-pin.lock"
+#: Output folders this process holds (a run's own nested writes do not lock again).
+_HELD: set[str] = set()
+
+
+@contextmanager
+def output_lock(out: str | Path) -> Iterator[None]:
+    """Hold ``out`` (created if missing) for this run; refuse if another run holds it.
+
+    Raises:
+        OutputError: Another run holds the folder, or it cannot be created.
+    """
+    out = Path(out)
+    try:
+        key = str(out.resolve())
+    except (OSError, RuntimeError) as exc:
+        raise OutputError(str(out), f"cannot use '{out}' ({exc})") from exc
+    if key in _HELD:
+        yield
+        return
+    created = not os.path.lexists(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(out / LOCK_FILE, timeout=0)
+        lock.acquire()
+    except Timeout as exc:
+        raise OutputError(
+            str(out),
+            f"'{out}' is being written by another vtm-pin run; wait for it to end, or choose "
+            "another --out",
+        ) from exc
+    except OSError as exc:
+        raise OutputError(
+            str(out), f"cannot write into '{exc.filename or out}' ({exc.strerror or exc})"
+        ) from exc
+    _HELD.add(key)
+    try:
+        yield
+    finally:
+        _HELD.discard(key)
+        try:
+            if created and [p.name for p in out.iterdir()] == [LOCK_FILE]:
+                Path(lock.lock_file).unlink()  # nothing was written: leave nothing
+                out.rmdir()
+        except OSError:
+            pass
+        lock.release()
+
+
+def _staging_prefix(out: Path) -> str:
+    """Name prefix of ``out``'s staging folders (beside it): one per output folder."""
+    digest = hashlib.sha256(str(out.resolve()).encode()).hexdigest()[:12]
+    return f".vtm-pin-staging-{digest}-"
 
 
 def write_staged(out: str | Path, write: Callable[[Path], None]) -> list[str]:
     """Let ``write`` fill a staging folder beside ``out``, then move its files into ``out``.
 
     Files of the same name already in ``out`` are replaced, others are kept. If ``write``
-    fails, nothing is moved into ``out``.
+    fails, nothing is moved into ``out``. The folder is held (:func:`output_lock`) meanwhile,
+    and staging folders that killed runs left for ``out`` are removed first.
 
     Returns:
         The names of the files written, sorted.
 
     Raises:
-        OutputError: A file could not be written or moved; ``out`` is as it was.
+        OutputError: Another run holds ``out``, or a file could not be written or moved
+            (naming it); ``out`` is as it was.
     """
     out = Path(out)
     staging: Path | None = None
-    try:
-        parent = out.resolve().parent
-        parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".vtm-pin-", dir=parent))
-        write(staging)
-        out.mkdir(parents=True, exist_ok=True)
-        written = sorted(item.name for item in staging.iterdir())
-        for name in written:
-            os.replace(staging / name, out / name)
-    except OSError as exc:
-        raise OutputError(str(out), f"cannot write '{out}' ({exc.strerror or exc})") from exc
-    finally:
-        if staging is not None:
-            shutil.rmtree(staging, ignore_errors=True)
+    with output_lock(out):
+        try:
+            parent = out.resolve().parent
+            prefix = _staging_prefix(out)
+            for stale in parent.glob(f"{prefix}*"):
+                shutil.rmtree(stale, ignore_errors=True)
+            staging = Path(tempfile.mkdtemp(prefix=prefix, dir=parent))
+            write(staging)
+            written = sorted(item.name for item in staging.iterdir())
+            for name in written:
+                os.replace(staging / name, out / name)
+        except OSError as exc:
+            where = exc.filename or out
+            raise OutputError(str(out), f"cannot write '{where}' ({exc.strerror or exc})") from exc
+        finally:
+            if staging is not None:
+                shutil.rmtree(staging, ignore_errors=True)
     return written

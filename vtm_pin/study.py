@@ -25,6 +25,7 @@ import copy
 import hashlib
 import itertools
 import json
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
@@ -196,6 +197,13 @@ class Study:
     def mode(self) -> str:
         """``grid`` or ``sampled``."""
         return "grid" if self.samples is None else "sampled"
+
+    @property
+    def size(self) -> int:
+        """How many cases the study has."""
+        if self.samples is not None:
+            return self.samples
+        return math.prod(len(values) for values in self.axes.values())
 
     def cases(self) -> list[Case]:
         """The study's cases, in order (see the module docstring)."""

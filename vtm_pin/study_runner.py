@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import json
 import math
 import os
@@ -36,13 +37,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .batch import ENGINES, PARTS
-from .exceptions import OutputError, StudyError, VtmError, VtmWarning
+from .exceptions import OutputError, StudyError, VtmError, VtmWarning, excerpt
 from .executors import connect, dask_workers, on_dask, on_pool
 from .figures import DEFINITIONS as FIGURE_DEFINITIONS
 from .figures import METRICS
 from .flags import KINDS as FLAG_KINDS
+from .inputs import read_text
 from .robot import RobotCache
-from .staging import write_staged
+from .staging import output_lock, write_staged
 from .study import Case, Study
 
 if TYPE_CHECKING:
@@ -116,25 +118,34 @@ class StudyOutput:
 _ROBOTS = RobotCache()
 
 
-def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[str, Any]]:
+def run_cases(
+    tasks: Sequence[CaseTask], engine: str = "batched", store: str | None = None
+) -> list[dict[str, Any]]:
     """Run cases; returns their records (JSON-ready), in order. Never raises for a case.
 
     A record holds the case id, index and values, ``status``, the metrics of
     :data:`METRICS` and per joint (None where undefined), the scenario's assumptions, the
     engine that ran it (and why not the batched one, if it was asked for), and the timing
     split: ``build`` (scenario and model), ``simulate`` (with the batched engine, the case's
-    share of its batch), ``report`` [s].
+    share of its batch: the batch's time since its previous case ended), ``report`` [s].
 
     Args:
         tasks: The cases.
         engine: ``batched`` (cases of one robot advance together, see
             :mod:`vtm_pin.batch`) or ``scalar``.
+        store: A study's output folder: each record is written into its ``cases`` folder as
+            soon as its case is done (a batch's first cases are kept if it is interrupted).
+            A batched case's ``simulate`` time is then the batch's time since its previous
+            case ended: these add up to the batch's time.
+
+    Raises:
+        OutputError: A record cannot be written into ``store``.
     """
-    from .batch import run_many
     from .figures import bound_variants
     from .scenario import build_scenario
     from .study import resolve_case
 
+    keep = functools.partial(_keep, None if store is None else Path(store))
     records: list[dict[str, Any]] = []
     built: list[tuple[dict[str, Any], Any, list[Any]]] = []  # record, scenario, bound variants
     for task in tasks:
@@ -158,40 +169,80 @@ def run_cases(tasks: Sequence[CaseTask], engine: str = "batched") -> list[dict[s
         except Exception as exc:
             _record_error(record, exc)
         record["timing"] = {"build": time.perf_counter() - start}
+    for record in records:
+        if str(record.get("status", "")).startswith("error"):  # it could not be built
+            record["wall_time"] = sum(record["timing"].values())
+            keep(record)
     groups: dict[str, list[tuple[dict[str, Any], Any, list[Any]]]] = {}
     for item in built:
         groups.setdefault(item[1].transition, []).append(item)
     for transition, items in groups.items():
-        # Every case's scenario and its bounds' variants run in one batch.
-        runs = [(k, s) for k, (_, scenario, extra) in enumerate(items) for s in (scenario, *extra)]
-        try:
-            outcome = run_many(
-                [s.problem for _, s in runs],
-                [s.integrator for _, s in runs],
-                transition=transition,
-                engine=engine,
-            )
-        except Exception as exc:
-            for record, _, _ in items:
+        _run_group(transition, items, engine, keep)
+    return records
+
+
+def _run_group(
+    transition: str,
+    items: Sequence[tuple[dict[str, Any], Any, list[Any]]],
+    engine: str,
+    keep: Callable[[dict[str, Any]], None],
+) -> None:
+    """Run cases of one transition rule, each with its bounds' variants, in one batch.
+
+    A case's record is completed and kept as soon as its runs have ended.
+    """
+    from .batch import run_many
+
+    runs = [(k, s) for k, (_, scenario, extra) in enumerate(items) for s in (scenario, *extra)]
+    ended: list[list[Any]] = [[] for _ in items]  # per case: (scenario, result, reason, share)
+    sizes = [1 + len(extra) for _, _, extra in items]
+
+    def on_done(i: int, result: Any, reason: str | None, share: Any) -> None:
+        k, scenario = runs[i]
+        ended[k].append((i, scenario, result, reason, share))
+        if len(ended[k]) == sizes[k]:
+            _complete(items[k][0], items[k][1], sorted(ended[k], key=lambda e: e[0]), engine)
+            keep(items[k][0])
+
+    try:
+        run_many(
+            [s.problem for _, s in runs],
+            [s.integrator for _, s in runs],
+            transition=transition,
+            engine=engine,
+            on_done=on_done,
+        )
+    except OutputError:
+        raise
+    except Exception as exc:  # a bug: every case not yet done fails with it
+        for k, (record, _, _) in enumerate(items):
+            if len(ended[k]) < sizes[k]:
                 _record_error(record, exc)
                 record["timing"]["report"] = 0.0
-            continue
-        done: dict[int, list[tuple[Any, Any, str, str | None, Any]]] = {}
-        for (k, s), *rest in zip(
-            runs, outcome.results, outcome.engines, outcome.fallbacks, outcome.shares, strict=True
-        ):
-            done.setdefault(k, []).append((s, *rest))
-        for k, (record, scenario, _) in enumerate(items):
-            (_, result, used, reason, share), *variants = done[k]
-            record["engine"] = used
-            record["fallback"] = reason if engine == "batched" else None
-            if share is not None:
-                record["engine_split"] = share
-            _record_result(record, scenario, result, [(v[0], v[1]) for v in variants])
-    for record in records:
-        timing = record["timing"]
-        record["wall_time"] = sum(timing.values())
-    return records
+                record["wall_time"] = sum(record["timing"].values())
+                keep(record)
+        return
+
+
+def _complete(
+    record: dict[str, Any], scenario: Any, ended: Sequence[tuple[Any, ...]], engine: str
+) -> None:
+    """Fill a case's record from its runs (the case's own first, then its bounds' variants)."""
+    (_, _, result, reason, share), *variants = ended
+    record["engine"] = "scalar" if reason is not None else "batched"
+    record["fallback"] = reason if engine == "batched" else None
+    if share is not None:
+        record["engine_split"] = share
+    _record_result(record, scenario, result, [(v[1], v[2]) for v in variants])
+    record["wall_time"] = sum(record["timing"].values())
+
+
+def _keep(store: Path | None, record: dict[str, Any]) -> None:
+    """Write a finished case's record into the store's folder (if there is one)."""
+    if store is not None:
+        begin = time.perf_counter()
+        save_record(store, record)
+        record["timing"]["write"] = time.perf_counter() - begin
 
 
 #: This process's study bases that pass the scenario schema (by their repr), and those that do
@@ -269,6 +320,87 @@ def _one_line(text: str) -> str:
     return " ".join(text.split())
 
 
+#: Keys every stored case record has, and the JSON types of their values.
+RECORD_KEYS: dict[str, type | tuple[type, ...]] = {
+    "case": str,
+    "index": int,
+    "values": dict,
+    "status": str,
+    "metrics": dict,
+    "timing": dict,
+    "wall_time": (int, float),
+    "checksum": str,
+}
+
+
+def seal(record: dict[str, Any]) -> str:
+    """The record as the JSON text stored, with ``checksum``: a hash of everything else.
+
+    Raises:
+        ValueError: The record holds NaN or an infinity (a record must not).
+    """
+    body = {k: v for k, v in record.items() if k != "checksum"}
+    record["checksum"] = _digest(body)
+    return json.dumps(record, indent=1, allow_nan=False) + "\n"
+
+
+def _digest(body: Mapping[str, Any]) -> str:
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def save_record(folder: Path, record: dict[str, Any]) -> None:
+    """Store one finished case in ``folder/cases``, atomically (a killed process leaves no part).
+
+    Raises:
+        OutputError: It cannot be written (naming the file and why).
+    """
+    path = folder / CASES_FOLDER / f"{record['case']}.json"
+    try:
+        _write_atomic(path, seal(record))
+    except OSError as exc:
+        raise OutputError(
+            str(folder), f"cannot write the case record '{path}' ({exc.strerror or exc})"
+        ) from exc
+
+
+def check_record(record: Any, case: Case) -> str | None:
+    """Why a stored record cannot be kept for ``case`` (None if it can).
+
+    It must have the shape of :data:`RECORD_KEYS`, the case's id and axis values, finite
+    metrics, and a checksum that matches its content.
+    """
+    if not isinstance(record, dict):
+        return "not a record (a mapping)"
+    for key, kind in RECORD_KEYS.items():
+        if not isinstance(record.get(key), kind) or isinstance(record.get(key), bool):
+            return f"'{key}' is missing or of the wrong type"
+    if record["case"] != case.id:
+        return f"it holds case {excerpt(record['case'])}"
+    body = {k: v for k, v in record.items() if k != "checksum"}
+    try:
+        if record["checksum"] != _digest(body):
+            return "its checksum does not match its content (edited or damaged)"
+    except ValueError:
+        return "it holds NaN or an infinity"
+    if _hash_values(record["values"]) != _hash_values(case.values):
+        return "its axis values are not the case's"
+    bad = [k for k, v in record["metrics"].items() if not _finite_or_none(v)]
+    if bad:
+        return f"metric {excerpt(bad[0])} is not a finite number"
+    return None
+
+
+def _hash_values(values: Mapping[str, Any]) -> str:
+    return json.dumps(values, sort_keys=True, default=str)
+
+
+def _finite_or_none(value: Any) -> bool:
+    if value is None:
+        return True
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 @dataclass
 class CaseStore:
     """The records of a study's finished cases in ``DIR/cases``, one JSON file per case.
@@ -277,66 +409,111 @@ class CaseStore:
         folder: The study's output folder.
         study: The study.
         records: Case id -> record, of the cases stored so far.
+        rejected: Stored records that were not kept (file name -> why); they are run again.
     """
 
     folder: Path
     study: Study
     records: dict[str, dict[str, Any]] = field(default_factory=dict)
+    rejected: dict[str, str] = field(default_factory=dict)
 
     @property
     def cases_folder(self) -> Path:
         """Where the case records are."""
         return self.folder / CASES_FOLDER
 
-    def open(self, wanted: set[str]) -> None:
-        """Create the folder, or reopen it: refuse another study's results, load the records.
+    def open(self, cases: Sequence[Case]) -> None:
+        """Create the folder, or reopen it: refuse another study's results, check the records.
+
+        A record that is not its case's (see :func:`check_record`) is not kept: its case is
+        computed again (:attr:`rejected` says which and why).
 
         Args:
-            wanted: Ids of the study's cases; only their records are loaded.
+            cases: The study's cases; only their records are loaded.
 
         Raises:
             StudyError: The folder holds the results of another study, or of this study
-                before its file or its base scenario changed.
+                before its file or its base scenario changed, or case records without a
+                ``study.json``; or ``study.json`` cannot be read.
             OutputError: The folder cannot be created or written.
         """
         state_path = self.folder / STATE_FILE
+        self._check_state(state_path)
+        target = self.cases_folder
         try:
-            if state_path.is_file():
-                state = json.loads(state_path.read_text())
-                if state.get("fingerprint") != self.study.fingerprint:
-                    raise StudyError(
-                        self.study.source,
-                        "",
-                        f"'{self.folder}' holds results of a different study (this study file "
-                        "or its base scenario changed since they were computed); to start "
-                        "over, delete that folder or choose another --out",
-                    )
             self.cases_folder.mkdir(parents=True, exist_ok=True)
             if not state_path.is_file():
+                target = state_path
                 state = {"study": self.study.source, "fingerprint": self.study.fingerprint}
                 _write_atomic(state_path, json.dumps(state, indent=2) + "\n")
-            for path in self.cases_folder.glob("*.json"):
-                if path.stem in wanted:
-                    self.records[path.stem] = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-            raise OutputError(str(self.folder), f"cannot use '{self.folder}' ({reason})") from exc
+        except OSError as exc:
+            raise OutputError(
+                str(self.folder), f"cannot write '{target}' ({exc.strerror or exc})"
+            ) from exc
+        for case in cases:
+            path = self.cases_folder / f"{case.id}.json"
+            if not os.path.lexists(path):
+                continue
+            try:
+                record = json.loads(read_text(path, StudyError))
+            except (StudyError, ValueError) as exc:
+                self.rejected[path.name] = f"cannot be read ({_one_line(str(exc))[:120]})"
+                continue
+            reason = check_record(record, case)
+            if reason is None:
+                self.records[case.id] = record
+            else:
+                self.rejected[path.name] = reason
+
+    def _check_state(self, state_path: Path) -> None:
+        """Refuse a folder that holds another study's results, or a damaged ``study.json``."""
+        changed = (
+            f"'{self.folder}' holds results of a different study (this study file or its base "
+            "scenario changed since they were computed); to start over, delete that folder or "
+            "choose another --out"
+        )
+        if not os.path.lexists(state_path):
+            if any(self.cases_folder.glob("*.json")):
+                raise StudyError(
+                    self.study.source,
+                    "",
+                    f"'{self.cases_folder}' holds case records but '{state_path}' is missing, "
+                    "so which study they belong to is unknown; to start over, delete that "
+                    "folder or choose another --out",
+                )
+            return
+        try:
+            state = json.loads(read_text(state_path, StudyError))
+        except (StudyError, ValueError) as exc:
+            reason = exc.problem if isinstance(exc, StudyError) else f"not JSON: {exc}"
+            raise StudyError(
+                str(state_path),
+                "",
+                f"cannot read this study's state file ({_one_line(reason)[:160]}); delete the "
+                "folder to start over, or choose another --out",
+            ) from exc
+        if not isinstance(state, dict) or not isinstance(state.get("fingerprint"), str):
+            raise StudyError(
+                str(state_path),
+                "fingerprint",
+                "the state file has no fingerprint (it is damaged); delete the folder to start "
+                "over, or choose another --out",
+            )
+        if state["fingerprint"] != self.study.fingerprint:
+            raise StudyError(self.study.source, "", changed)
 
     def save(self, record: dict[str, Any]) -> None:
-        """Store one finished case, atomically (a killed process leaves no partial file)."""
-        text = json.dumps(record, indent=1, allow_nan=False) + "\n"
-        try:
-            _write_atomic(self.cases_folder / f"{record['case']}.json", text)
-        except OSError as exc:
-            raise OutputError(str(self.folder), f"cannot write a case ({exc.strerror})") from exc
+        """Store one finished case (see :func:`save_record`)."""
+        save_record(self.folder, record)
         self.records[record["case"]] = record
 
 
 def _write_atomic(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a temporary file in the same folder and a rename.
 
-    A killed process leaves the old file or the new one, never a part. There is no fsync:
-    the page cache outlives the process, and a case lost to a power cut is run again.
+    A killed process leaves the old file or the new one, never a part (and perhaps a
+    temporary ``.NAME.*`` file, which is never read). There is no fsync: the page cache
+    outlives the process, and a case lost to a power cut is run again.
     """
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
@@ -405,9 +582,28 @@ def run_study(
             f"'{engine}' is not an engine; allowed: {', '.join(ENGINES)}",
         )
     client = connect(scheduler) if scheduler is not None else None  # before anything is written
+    try:
+        with output_lock(out):
+            return _run_held(study, out, workers, (client, scheduler), progress, engine)
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _run_held(
+    study: Study,
+    out: Path,
+    workers: int | None,
+    cluster: tuple[Any | None, str | None],
+    progress: Callable[[int, int], None] | None,
+    engine: str,
+) -> StudyOutput:
+    """:func:`run_study` once it holds ``out`` (``cluster``: the Dask client and its address)."""
+    client, where = cluster
     cases = study.cases()
     store = CaseStore(out, study)
-    store.open({case.id for case in cases})
+    store.open(cases)
+    _warn_rejected(store)
     todo = [case for case in cases if case.id not in store.records]
     if progress is not None:
         progress(len(cases) - len(todo), len(cases))
@@ -417,21 +613,38 @@ def run_study(
         for case in todo
     ]
     begin_cases = time.perf_counter()
-    for record in _execute(tasks, workers or default_workers(), client, engine):
-        begin = time.perf_counter()
-        store.save(record)
-        record.setdefault("timing", {})["write"] = time.perf_counter() - begin  # this run's
+    local = client is None  # local workers store each case themselves, as it finishes
+    for record in _execute(tasks, workers or default_workers(), client, engine, out):
+        if local:
+            store.records[record["case"]] = record
+        else:
+            begin = time.perf_counter()
+            store.save(record)
+            record["timing"]["write"] = time.perf_counter() - begin  # this run's
         if progress is not None:
             progress(len(store.records), len(cases))
     records = [store.records[case.id] for case in cases]
     _refuse_all_failed(study, records)
     count = workers or default_workers()
-    executor = f"dask {scheduler}" if scheduler else f"{count} worker{'s' if count > 1 else ''}"
+    executor = f"dask {where}" if client is not None else f"{count} worker{'s' * (count > 1)}"
     begin_outputs = time.perf_counter()
     output = _finish(study, out, records, f"{executor}, {engine} engine", len(tasks))
     phases = {"cases": begin_outputs - begin_cases, "outputs": time.perf_counter() - begin_outputs}
     _warn_flagged(records, out)
     return dataclasses.replace(output, phases=phases)
+
+
+def _warn_rejected(store: CaseStore) -> None:
+    """One warning line if stored records were not kept (they are computed again)."""
+    if store.rejected:
+        name, reason = next(iter(store.rejected.items()))
+        more = len(store.rejected) - 1
+        warnings.warn(
+            f"{len(store.rejected)} stored case record(s) in '{store.cases_folder}' not kept, "
+            f"computed again ({name}: {reason}{f'; and {more} more' if more else ''})",
+            VtmWarning,
+            stacklevel=4,
+        )
 
 
 def _warn_flagged(records: Sequence[Mapping[str, Any]], out: Path) -> None:
@@ -482,13 +695,17 @@ def _chunks(tasks: Sequence[CaseTask], workers: int, engine: str) -> list[list[C
 
 
 def _execute(
-    tasks: Sequence[CaseTask], workers: int, client: Any | None, engine: str
+    tasks: Sequence[CaseTask], workers: int, client: Any | None, engine: str, out: Path
 ) -> Iterator[dict]:
-    """Run the tasks; yields each record as soon as its piece is done (in any order)."""
-    work = functools.partial(run_cases, engine=engine)
+    """Run the tasks; yields each record as soon as its piece is done (in any order).
+
+    Local workers (this process, or a pool on this machine) store each record in ``out`` as
+    its case finishes; a cluster's records are stored by the caller.
+    """
     if client is not None:
         chunks = _chunks(tasks, 4 * dask_workers(client), engine) if tasks else []
-        return on_dask(chunks, work, client)
+        return on_dask(chunks, functools.partial(run_cases, engine=engine), client)
+    work = functools.partial(run_cases, engine=engine, store=str(out))
     chunks = _chunks(tasks, workers, engine)
     if workers <= 1 or len(chunks) <= 1:
         return (record for chunk in chunks for record in work(chunk))
