@@ -24,7 +24,7 @@ import yaml
 
 from vtm_pin import cli
 from vtm_pin.cli import main
-from vtm_pin.staging import LOCK_FILE, _staging_prefix
+from vtm_pin.staging import _staging_prefix
 from vtm_pin.study import load_study
 from vtm_pin.study_runner import CASES_FOLDER, STATE_FILE, check_record, run_study, seal
 
@@ -260,14 +260,17 @@ def test_two_studies_started_at_once_into_one_folder_never_both_succeed(tmp_path
 def test_a_held_folder_is_refused_and_left_as_it_is(
     finished: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from filelock import FileLock
-
+    fcntl = pytest.importorskip("fcntl")
     path, out = finished
     before = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
-    with FileLock(out / LOCK_FILE):
+    fd = os.open(out, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)  # what another run holds
         code, err = rerun(path, out, capsys)
         assert main(["run", "pendulum3r", "--out", str(out), "--quiet", "--no-plots"]) == 1
         run_err = capsys.readouterr().err
+    finally:
+        os.close(fd)
     line = one_error_line(err)
     assert code == 1 and "being written by another vtm-pin run" in line and str(out) in line
     assert "being written by another vtm-pin run" in one_error_line(run_err)

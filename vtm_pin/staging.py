@@ -9,6 +9,7 @@ is removed by the next run into the same folder.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
@@ -17,12 +18,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from filelock import FileLock, Timeout
-
 from .exceptions import OutputError
 
-#: The lock file inside an output folder (empty; held by the run writing the folder).
-LOCK_FILE = ".vtm-pin.lock"
 #: Output folders this process holds (a run's own nested writes do not lock again).
 _HELD: set[str] = set()
 
@@ -31,44 +28,54 @@ _HELD: set[str] = set()
 def output_lock(out: str | Path) -> Iterator[None]:
     """Hold ``out`` (created if missing) for this run; refuse if another run holds it.
 
+    The lock is an exclusive ``flock`` on the folder itself, so it leaves no file behind and
+    ends with the process however it ends. Where there is no ``flock`` (Windows) or the file
+    system does not support it, the folder is used without a lock.
+
     Raises:
         OutputError: Another run holds the folder, or it cannot be created.
     """
     out = Path(out)
-    try:
-        key = str(out.resolve())
-    except (OSError, RuntimeError) as exc:
-        raise OutputError(str(out), f"cannot use '{out}' ({exc})") from exc
-    if key in _HELD:
-        yield
-        return
     created = not os.path.lexists(out)
     try:
+        key = str(out.resolve())
         out.mkdir(parents=True, exist_ok=True)
-        lock = FileLock(out / LOCK_FILE, timeout=0)
-        lock.acquire()
-    except Timeout as exc:
+        fd = os.open(out, os.O_RDONLY)
+    except (OSError, RuntimeError) as exc:
+        where = getattr(exc, "filename", None) or out
+        reason = getattr(exc, "strerror", None) or exc
+        raise OutputError(str(out), f"cannot write into '{where}' ({reason})") from exc
+    nested = key in _HELD
+    try:
+        if not nested:
+            _lock(fd, out)
+            _HELD.add(key)
+        yield
+    finally:
+        if not nested:
+            _HELD.discard(key)
+        os.close(fd)  # releases the lock
+        if created:  # nothing was written: leave nothing
+            with contextlib.suppress(OSError):
+                out.rmdir()
+
+
+def _lock(fd: int, out: Path) -> None:
+    """Take the exclusive lock on the folder ``fd`` without waiting."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: no flock
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError as exc:
         raise OutputError(
             str(out),
             f"'{out}' is being written by another vtm-pin run; wait for it to end, or choose "
             "another --out",
         ) from exc
-    except OSError as exc:
-        raise OutputError(
-            str(out), f"cannot write into '{exc.filename or out}' ({exc.strerror or exc})"
-        ) from exc
-    _HELD.add(key)
-    try:
-        yield
-    finally:
-        _HELD.discard(key)
-        try:
-            if created and [p.name for p in out.iterdir()] == [LOCK_FILE]:
-                Path(lock.lock_file).unlink()  # nothing was written: leave nothing
-                out.rmdir()
-        except OSError:
-            pass
-        lock.release()
+    except OSError:  # a file system without flock: go on without the lock
+        return
 
 
 def _staging_prefix(out: Path) -> str:
