@@ -21,6 +21,7 @@ import pytest
 from vtm_pin.calibration import CalibrationError, check_table
 from vtm_pin.cli import main
 from vtm_pin.exceptions import SimulationError, VtmError
+from vtm_pin.robot import ROBOTS_DIR
 from vtm_pin.stopping_table import (
     COLUMNS,
     MAX_MEAN_SPEED_RATIO,
@@ -193,6 +194,7 @@ def test_the_published_ur5_table_passes_every_check(
     for row in table.rows:
         assert 0.3 < row.stop_distance / (row.speed * row.stop_time) < MAX_MEAN_SPEED_RATIO
     assert check_table(table, ROBOT) == table
+    assert check_table(table, str(ROBOTS_DIR / f"{ROBOT}.urdf")) == table  # by its file name
     assert main(["calibrate", str(UR5_TABLE), "--robot", ROBOT, "--out", str(tmp_path)]) == 1
     assert capsys.readouterr().err == "vtm-pin: error: fit reached\n"
     assert no_fit == [table]
