@@ -375,7 +375,7 @@ def test_bad_tables_are_refused_in_one_line_naming_row_and_column(tmp_path, cont
 
 def test_a_folder_is_refused(tmp_path):
     error = refused(tmp_path)
-    assert error.key == "" and "cannot read the file" in error.problem
+    assert error.key == "" and "is a folder, not a regular file" in error.problem
 
 
 def test_a_long_cell_is_cut_in_the_message(tmp_path):

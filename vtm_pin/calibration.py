@@ -38,13 +38,24 @@ import math
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .exceptions import VtmError, VtmWarning
+from .exceptions import InputError, VtmError, VtmWarning
 from .robot import Robot, RobotCache, load_robot
-from .stopping_table import StoppingRow, StoppingTable, check_joints
+from .stopping_table import (
+    StoppingRow,
+    StoppingTable,
+    check_joints,
+    check_robot,
+    check_units,
+    row_message,
+)
+
+if TYPE_CHECKING:
+    from .scenario import Scenario
 
 #: The figures ``fit`` may name: (scenario key, unit, shared by every joint, positive scale).
 FIGURES: dict[str, tuple[str, str, bool, bool]] = {
@@ -102,6 +113,15 @@ MIN_SPEED_FIGURE, MAX_SPEED_FIGURE = 1.0e-1, 1.0e5
 INTEGRATOR = {"method": "dop853", "rtol": 1.0e-10, "atol": 1.0e-12, "output_dt": 1.0e-3}
 #: Annex-B direction of each table motion.
 DIRECTIONS = {"horizontal": "positive", "down": "down", "up": "up"}
+#: The table column each key of a row's scenario comes from, for messages.
+_COLUMN_OF = {
+    "annex_b.joint": "joint",
+    "annex_b.max_speed": "speed_deg_s",
+    "annex_b.extension": "extension_pct",
+    "annex_b.direction": "motion",
+    "payload": "payload_kg",
+    "stop.category": "category",
+}
 
 
 class CalibrationError(VtmError):
@@ -331,6 +351,56 @@ def drives_and_brakes(
     return drives, brakes
 
 
+def row_model(
+    row: StoppingRow,
+    robot: str,
+    values: Mapping[str, float],
+    figures: Sequence[Figure],
+    prior: Mapping[str, Mapping[str, Any]],
+    loader: Callable[..., Robot] = load_robot,
+) -> Scenario:
+    """The scenario of one row, built and checked (not run).
+
+    Raises:
+        CalibrationError: The row's scenario is refused (a pose the robot cannot take, a
+            category-1 row: the ramp is not in the table), or a horizontal row whose joint
+            moves the tool vertically; one line naming the table file, the row and column.
+    """
+    from .scenario import build_scenario
+
+    if row.category != 0:
+        raise CalibrationError(
+            row_message(
+                row,
+                "category-1 rows need the drives' ramp, which the table does not give; "
+                "calibrate category-0 rows",
+                "category",
+            )
+        )
+    raw = row_scenario(row, robot, values, figures, prior)
+    try:
+        scenario = build_scenario(raw, source="row", name="row", loader=loader)
+    except InputError as exc:
+        column = next((c for k, c in _COLUMN_OF.items() if f"{exc.key}.".startswith(f"{k}.")), "")
+        raise CalibrationError(
+            row_message(row, f"its Annex-B scenario is refused: '{exc.key}': {exc.problem}", column)
+        ) from exc
+    except VtmError as exc:
+        raise CalibrationError(row_message(row, f"its Annex-B scenario is refused: {exc}")) from exc
+    state = scenario.test_state
+    assert state is not None
+    if row.motion == "horizontal" and state.vertical:
+        raise CalibrationError(
+            row_message(
+                row,
+                f"motion is horizontal, but {row.joint} moves the tool vertically in the "
+                "Annex-B pose (give down or up)",
+                "motion",
+            )
+        )
+    return scenario
+
+
 def simulate_row(
     row: StoppingRow,
     robot: str,
@@ -342,39 +412,64 @@ def simulate_row(
     """Simulate one row; its tested joint's stopping angle and time.
 
     Raises:
-        CalibrationError: The row's scenario is refused (a pose the robot cannot take, a
-            category-1 row: the ramp is not in the table), or a horizontal row whose joint
-            moves the tool vertically.
+        CalibrationError: The row's scenario is refused (see :func:`row_model`), or its
+            simulation fails; one line naming the table file and the row.
     """
     from .pipeline import run
-    from .scenario import build_scenario
 
-    raw = row_scenario(row, robot, values, figures, prior)
-    if row.category != 0:
-        raise CalibrationError(
-            f"row {row.line}: category-1 rows need the drives' ramp, which the table does not "
-            "give; calibrate category-0 rows"
-        )
+    scenario = row_model(row, robot, values, figures, prior, loader)
     try:
-        scenario = build_scenario(raw, source=f"row {row.line}", name="row", loader=loader)
         with warnings.catch_warnings():  # a trial's flags are not the user's: the fit goes on
             warnings.simplefilter("ignore", VtmWarning)
             output = run(scenario)
     except VtmError as exc:
-        raise CalibrationError(str(exc)) from exc
+        tried = ", ".join(f"{name} {value:.4g}" for name, value in values.items())
+        raise CalibrationError(
+            row_message(row, f"simulating it failed at the figures {tried or 'prior'}: {exc}")
+        ) from exc
     state = scenario.test_state
     assert state is not None
-    if row.motion == "horizontal" and state.vertical:
-        raise CalibrationError(
-            f"row {row.line}: motion is horizontal, but {row.joint} moves the tool vertically "
-            "in the Annex-B pose (give down or up)"
-        )
     joint = output.stopping[output.rule].joints[state.joint_index]
     stopped = joint.stopped
     time = joint.stop_time if stopped else float(output.result.t[-1])
     q = output.result.q[:, state.joint_index]
     kinds = tuple(f.kind for f in output.figures.flags) if output.figures is not None else ()
     return RowFit(row, float(np.max(np.abs(q - q[0]))), time, stopped, kinds)
+
+
+def check_table(
+    table: StoppingTable, robot_name: str, *, robot_differs: bool = False
+) -> StoppingTable:
+    """Check a table against a robot before anything is fitted; the table to fit.
+
+    In turn: its units (:func:`~vtm_pin.stopping_table.check_units`), its robot
+    (:func:`~vtm_pin.stopping_table.check_robot`: the names must match unless
+    ``robot_differs``, and then the table returned says so in its sources), its joints, and
+    every row's scenario at the prior figures (:func:`row_model`). Each refusal is one line
+    naming the table file, the row and the column.
+
+    Args:
+        table: The stopping table.
+        robot_name: The robot (``--robot``).
+        robot_differs: Fit a table measured on another robot on purpose.
+
+    Raises:
+        TableError: Units that make a row impossible, another robot's table, a joint the
+            robot does not have.
+        CalibrationError: A row whose scenario cannot be built.
+    """
+    check_units(table)
+    robot = load_robot(robot_name)
+    names = [robot_name]
+    if robot_name.lower().endswith(".urdf"):  # a file: its name, or the robot it names
+        names = [Path(robot_name).stem, str(robot.model.name)]
+    table = check_robot(table, robot_name, names, robot_differs)
+    check_joints(table, robot.joints)
+    prior = priors(robot)
+    cache = RobotCache()
+    for row in table.rows:
+        row_model(row, robot_name, {}, (), prior, cache)
+    return table
 
 
 def residuals(fits: Sequence[RowFit], scatter: tuple[float, float]) -> np.ndarray:
@@ -407,10 +502,12 @@ def calibrate(
 
     Raises:
         CalibrationError: Bad figures or rows (see :func:`simulate_row`).
-        InputError: The table names a joint the robot does not have.
+        TableError: A row impossible as read (a unit mistake), or a joint the robot does not
+            have.
     """
     from scipy.optimize import least_squares
 
+    check_units(table)
     robot = load_robot(robot_name)
     check_joints(table, robot.joints)
     used = list(table.rows if rows is None else rows)

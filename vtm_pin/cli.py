@@ -27,6 +27,7 @@ from .calibration import (
     TIME_SCATTER,
     LeftOut,
     calibrate,
+    check_table,
     leave_one_out,
 )
 from .calibration_report import calibration_summary, format_calibration, write_calibration
@@ -397,6 +398,13 @@ def _calibrate_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None
         help="also fit without each joint's rows and predict them (use shared figures)",
     )
     calibrate.add_argument(
+        "--robot-differs",
+        action="store_true",
+        help="fit TABLE to --robot although its robot column names another robot (names are "
+        "compared by their letters and digits: UR5/CB3 is ur5_cb3 or ur5); every source in "
+        "the outputs then says which robot the table was measured on",
+    )
+    calibrate.add_argument(
         "--out", type=_folder, required=True, metavar="DIR", help="output folder"
     )
     _output_options(calibrate)
@@ -535,7 +543,9 @@ def _calibrate(args: argparse.Namespace) -> int:
         check_output_folder(args.out)
     except OutputError as exc:
         raise ScenarioError("command line", "--out", exc.problem) from exc
-    table = read_stopping_table(args.table)
+    table = check_table(
+        read_stopping_table(args.table), args.robot, robot_differs=args.robot_differs
+    )
     scatter = (args.distance_scatter, args.time_scatter)
     show = not (args.quiet or args.json) and sys.stderr.isatty()
     comparison, checks = _fit_or_compare(args, table, scatter, show)

@@ -35,14 +35,36 @@ Rules:
   are comment lines: lines whose first character other than a space is ``#``.
 * A table holds one robot's data: every row has the same ``robot``.
 * No two rows have the same joint, category, speed, payload, extension and motion.
-* Files larger than :data:`~vtm_pin.inputs.MAX_FILE_BYTES` are refused; a UTF-8 byte order
-  mark is allowed.
+* At most :data:`MAX_ROWS` rows (1000: a maker's table has tens; the full ISO 10218-1 grid of
+  3 speeds x 3 payloads x 3 extensions for 6 joints in both categories has 324); files
+  larger than :data:`~vtm_pin.inputs.MAX_FILE_BYTES` are refused; a UTF-8 byte order mark is
+  allowed.
+
+Two more rules are checked before a calibration (``vtm-pin calibrate``) fits anything:
+
+* Units (:func:`check_units`): a joint that stops from the speed v0 within the time t travels
+  about v0 t / 2 (a constant deceleration) to v0 t (a delay, then a hard stop); one that falls
+  under gravity during the brake delay may speed up first. A row whose ``stop_distance_rad``
+  exceeds :data:`MAX_MEAN_SPEED_RATIO` (2) x v0 t is impossible as read: a unit is wrong. The
+  message names the column that would explain it: ``stop_time_ms`` when every time of the
+  table is below :data:`SECONDS_LIKE_MS` (10 ms: times in seconds) and the row is possible
+  read in seconds; ``speed_deg_s`` when the row is possible with the speed read in rad/s
+  (or ``stop_distance_rad`` read in degrees, which the same factor 57.3 explains).
+* Robot (:func:`check_robot`): the ``robot`` column must name the robot the table is fitted
+  to. Names are compared by their runs of letters and digits, ignoring case: they match when
+  the runs of one, joined, equal some consecutive runs of the other's, joined (``UR5/CB3``
+  matches ``ur5_cb3`` and ``ur5``, not ``ur10`` nor ``ur5e``; ``KUKA KR 16`` matches
+  ``kr16``). The robot is named by ``--robot``; a URDF path by its file name or its
+  ``<robot name>``. ``--robot-differs`` fits another robot's table on purpose:
+  every source then says so, in ``calibration.json`` and ``calibrated.yaml``.
 
 A table that breaks a rule is refused with :class:`TableError`: one line naming the file, the
 row and column, and what is allowed, e.g. ``table.csv: 'row 3, column speed_deg_s': 'fast' is
 not a number (deg/s, > 0 and <= 3600)``. Rows are numbered by the file's lines, as a
 spreadsheet numbers them: the header is row 1 (unless comment lines precede it) and blank and
-comment lines count. :func:`check_joints` checks the joints against a robot's.
+comment lines count. :func:`check_joints` checks the joints against a robot's. Errors found
+later about a row (its scenario refused, its simulation failed during a fit) name the file
+and row the same way (:func:`row_message`).
 
 Read values are in SI units: speeds in rad/s, times in s, extensions as fractions.
 """
@@ -53,7 +75,7 @@ import csv
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .exceptions import InputError, excerpt
@@ -99,6 +121,20 @@ BOUNDS: dict[str, tuple[float, bool, float]] = {
     "stop_time_ms": (0.0, False, 1e6),
     "stop_distance_rad": (0.0, False, 100.0),
 }
+#: Most rows of stopping data read from a table. A maker's table has tens of rows (UR's has
+#: 3 per category); the full ISO 10218-1 Annex-B grid (3 speeds x 3 payloads x 3 extensions)
+#: for 6 joints in both categories has 324. Every row is simulated at each step of a fit, so
+#: 1000 rows already take hours; a larger file is not a stopping table.
+MAX_ROWS = 1000
+#: Largest stopping distance accepted, as a multiple of speed x time [-]. A joint that only
+#: decelerates travels between v0 t / 2 (constant deceleration) and v0 t (a delay, then a hard
+#: stop); one that falls under gravity during the brake delay may speed up first, hence the
+#: margin. The unit mistakes it catches are far beyond: x1000 for seconds in ``stop_time_ms``,
+#: x57.3 for rad/s in ``speed_deg_s`` (or degrees in ``stop_distance_rad``).
+MAX_MEAN_SPEED_RATIO = 2.0
+#: A table whose every ``stop_time_ms`` is below this [ms] looks like it holds seconds: no arm
+#: stops from a tested speed in 10 ms (its brakes alone take longer to engage), none takes 10 s.
+SECONDS_LIKE_MS = 10.0
 #: What a text column must hold, said when it is empty (``joint_label`` may be empty).
 _REQUIRED_TEXT = {
     "robot": "give the robot's name",
@@ -136,6 +172,7 @@ class StoppingRow:
         stop_time: Stopping time [s] (from ``stop_time_ms``).
         stop_distance: Stopping distance of the joint [rad].
         source: Where the figures come from.
+        path: The file the row was read from, for messages ("" if not read from a file).
     """
 
     line: int
@@ -150,6 +187,7 @@ class StoppingRow:
     stop_time: float
     stop_distance: float
     source: str
+    path: str = field(default="", compare=False)
 
 
 @dataclass(frozen=True)
@@ -204,6 +242,14 @@ def read_stopping_table(path: str | Path) -> StoppingTable:
     _check_header(source, *lines[0])
     if len(lines) == 1:
         raise TableError(source, "", "has a header but no rows of stopping data")
+    if len(lines) - 1 > MAX_ROWS:
+        raise TableError(
+            source,
+            "",
+            f"has {len(lines) - 1} rows of stopping data; at most {MAX_ROWS} are read (a "
+            "maker's table has tens; each row is simulated at every step of a fit): is it "
+            "the right file?",
+        )
     rows: list[StoppingRow] = []
     seen: dict[tuple[object, ...], int] = {}
     for line, cells in lines[1:]:
@@ -247,6 +293,126 @@ def check_joints(table: StoppingTable, joints: Sequence[str]) -> None:
                 f"'{excerpt(row.joint)}' is not a joint of the robot; its joints are: "
                 f"{', '.join(joints)}",
             )
+
+
+def row_message(row: StoppingRow, problem: str, column: str = "") -> str:
+    """``problem`` about ``row`` (and its ``column``), as :class:`TableError` says it.
+
+    For errors found after reading (a row's scenario refused, its simulation failed): one line
+    naming the file, the row (its line number) and the column, e.g. ``table.csv: 'row 3,
+    column motion': ...``.
+    """
+    key = _cell_key(row.line, column) if column else f"row {row.line}"
+    return str(TableError(row.path, key, problem))
+
+
+def check_units(table: StoppingTable) -> None:
+    """Refuse a row whose distance no stop from its speed within its time can travel.
+
+    A row is impossible as read when ``stop_distance_rad`` exceeds
+    :data:`MAX_MEAN_SPEED_RATIO` x speed x time (see the module's docstring); the message
+    names the unit mistake that would explain it.
+
+    Raises:
+        TableError: Naming the file, the first impossible row, the column of the likely
+            mistake, and the mistake.
+    """
+    seconds = all(row.stop_time * 1e3 < SECONDS_LIKE_MS for row in table.rows)
+    for row in table.rows:
+        if row.stop_distance <= MAX_MEAN_SPEED_RATIO * row.speed * row.stop_time:
+            continue
+        column, hint = _unit_mistake(row, seconds)
+        raise TableError(
+            table.path,
+            _cell_key(row.line, column),
+            f"stop_distance_rad {row.stop_distance:g} rad is more than {MAX_MEAN_SPEED_RATIO:g} "
+            f"x speed x time ({row.speed:.4g} rad/s x {row.stop_time:.4g} s = "
+            f"{row.speed * row.stop_time:.3g} rad): no stop travels that far, so a unit is "
+            f"wrong; {hint}",
+        )
+
+
+def _unit_mistake(row: StoppingRow, seconds: bool) -> tuple[str, str]:
+    """The column of the unit mistake that makes ``row`` possible, and what to do.
+
+    Args:
+        row: A row whose distance is beyond :data:`MAX_MEAN_SPEED_RATIO` x speed x time.
+        seconds: Whether every time of the table is below :data:`SECONDS_LIKE_MS`.
+    """
+    reach = MAX_MEAN_SPEED_RATIO * row.speed * row.stop_time  # [rad]
+    if seconds and row.stop_distance <= 1e3 * reach:
+        return "stop_time_ms", (
+            f"the times look like seconds: every stop_time_ms is below {SECONDS_LIKE_MS:g} ms, "
+            "and read as seconds the row is possible; write milliseconds"
+        )
+    if row.stop_distance <= math.degrees(reach):
+        return "speed_deg_s", (
+            f"the speed looks like rad/s: read as {math.degrees(row.speed):.4g} rad/s the row "
+            "is possible; write deg/s (or, if stop_distance_rad is in degrees, write radians)"
+        )
+    return "stop_distance_rad", (
+        "check the units: speed_deg_s in deg/s, stop_time_ms in ms, stop_distance_rad in rad"
+    )
+
+
+def robot_matches(table_robot: str, names: Sequence[str]) -> bool:
+    """Whether the table's ``robot`` names the same robot as one of ``names``.
+
+    Names are compared by their runs of letters and digits, ignoring case: two names match
+    when the runs of one, joined, equal some consecutive runs of the other's, joined
+    (``UR5/CB3`` matches ``ur5_cb3`` and ``ur5``, not ``ur10`` nor ``ur5e``).
+    """
+    ours = _runs(table_robot)
+    for name in names:
+        theirs = _runs(name)
+        if ours and theirs and (_within(ours, theirs) or _within(theirs, ours)):
+            return True
+    return False
+
+
+def check_robot(
+    table: StoppingTable, robot: str, names: Sequence[str], differs: bool
+) -> StoppingTable:
+    """The table, checked to be ``robot``'s (see :func:`robot_matches`).
+
+    Args:
+        table: The stopping table.
+        robot: The robot as ``--robot`` gives it, for messages.
+        names: The names it goes by: ``--robot``; for a URDF path, its file name and its
+            ``<robot name>``.
+        differs: Fit another robot's table on purpose (``--robot-differs``): the table is
+            returned with every row's source saying so, for the outputs.
+
+    Raises:
+        TableError: The names do not match and ``differs`` is not set; names the file, the
+            table's robot and ``robot``, and ``--robot-differs``.
+    """
+    if robot_matches(table.robot, names):
+        return table
+    if differs:
+        note = f" [measured on {table.robot}; fitted to {robot} by --robot-differs]"
+        rows = tuple(replace(row, source=row.source + note) for row in table.rows)
+        return replace(table, rows=rows)
+    raise TableError(
+        table.path,
+        _cell_key(table.rows[0].line, "robot"),
+        f"the table is for '{excerpt(table.robot)}', not --robot {excerpt(robot)} (names "
+        "compared by their letters and digits); give the robot it was measured on, or "
+        f"--robot-differs to fit it to {excerpt(robot)} on purpose (the outputs then say so)",
+    )
+
+
+def _runs(name: str) -> list[str]:
+    """The runs of letters and digits of a name, in lower case: ``UR5/CB3`` -> ur5, cb3."""
+    return re.findall(r"[^\W_]+", name.lower())
+
+
+def _within(short: list[str], long: list[str]) -> bool:
+    """Whether ``short``, joined, equals consecutive runs of ``long``, joined."""
+    joined = "".join(short)
+    return any(
+        "".join(long[i:j]) == joined for i in range(len(long)) for j in range(i + 1, len(long) + 1)
+    )
 
 
 def _read_text(path: Path) -> str:
@@ -360,6 +526,7 @@ def _parse_row(source: str, line: int, cells: list[str]) -> StoppingRow:
         stop_time=number["stop_time_ms"] / 1000.0,
         stop_distance=number["stop_distance_rad"],
         source=value["source"],
+        path=source,
     )
 
 
