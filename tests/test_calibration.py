@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import warnings
 from pathlib import Path
 
@@ -141,12 +140,13 @@ def test_the_calibrated_fragment_reproduces_the_fitted_figures(round_trip, tmp_p
 
 
 @pytest.mark.slow
-def test_a_per_joint_figure_without_rows_is_not_determined(synthetic: Path) -> None:
+def test_a_joint_without_rows_gets_no_per_joint_figure(synthetic: Path) -> None:
+    """Per-joint figures cover the fitted rows' joints only: a left-out joint keeps its prior."""
     table = read_stopping_table(synthetic)
     kept = [row for row in table.rows if row.joint != "elbow_joint"]
     calibration = calibrate(table, ROBOT, ["delay", "sliding"], rows=kept)
-    assert not calibration.determined["sliding.elbow_joint"]
-    assert math.isinf(calibration.uncertainty["sliding.elbow_joint"])
+    assert "sliding.elbow_joint" not in calibration.determined
+    assert "sliding.elbow_joint" not in calibration.uncertainty
     assert calibration.rank == 3
     assert calibration.determined["sliding.shoulder_pan_joint"]
 
