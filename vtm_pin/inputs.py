@@ -8,12 +8,16 @@ the line or the key:
 * YAML nested deeper than :data:`MAX_DEPTH`, aliases that refer to a collection containing
   them, and documents whose aliases expand to more than :data:`MAX_NODES` values ("billion
   laughs" bombs are refused after reading a few dozen lines, before any expansion);
+* a key given twice in one mapping (YAML would keep the last one silently), named by its key
+  path and both lines, and integers of more than 4300 digits (Python will not read them),
+  named by their key path and line;
 * mapping keys that are not strings (``1: a``).
 
 :func:`check_schema` then validates the parsed document against a JSON schema in which a
-``number`` is a finite float (YAML's ``.nan`` and ``.inf``, and integers too large for a
-float, are not numbers), and turns the first error into :class:`~vtm_pin.InputError` with the
-key path, the value (as a short excerpt) and what is allowed.
+``number`` or ``integer`` is a finite float (YAML's ``.nan`` and ``.inf``, and integers too
+large for a float, are not numbers), and turns the first error into
+:class:`~vtm_pin.InputError` with the key path, the value (as a short excerpt) and what is
+allowed.
 """
 
 from __future__ import annotations
