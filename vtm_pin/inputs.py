@@ -8,12 +8,16 @@ the line or the key:
 * YAML nested deeper than :data:`MAX_DEPTH`, aliases that refer to a collection containing
   them, and documents whose aliases expand to more than :data:`MAX_NODES` values ("billion
   laughs" bombs are refused after reading a few dozen lines, before any expansion);
+* a key given twice in one mapping (YAML would keep the last one silently), named by its key
+  path and both lines, and integers of more than 4300 digits (Python will not read them),
+  named by their key path and line;
 * mapping keys that are not strings (``1: a``).
 
 :func:`check_schema` then validates the parsed document against a JSON schema in which a
-``number`` is a finite float (YAML's ``.nan`` and ``.inf``, and integers too large for a
-float, are not numbers), and turns the first error into :class:`~vtm_pin.InputError` with the
-key path, the value (as a short excerpt) and what is allowed.
+``number`` or ``integer`` is a finite float (YAML's ``.nan`` and ``.inf``, and integers too
+large for a float, are not numbers), and turns the first error into
+:class:`~vtm_pin.InputError` with the key path, the value (as a short excerpt) and what is
+allowed.
 """
 
 from __future__ import annotations
@@ -128,8 +132,14 @@ def read_yaml(path: Path, error: type[InputError]) -> Any:
     """
     source = str(path)
     text = read_text(path, error)
+    loader = None
     try:
-        return yaml.load(text, Loader=_LimitedLoader)  # a SafeLoader: builds plain data only
+        loader = _LimitedLoader(text)  # a SafeLoader: builds plain data only
+        node = loader.get_single_node()
+        if node is None:  # an empty document
+            return None
+        _check_nodes(node, loader, source, error)
+        return loader.construct_document(node)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f" at line {mark.line + 1}" if mark is not None else ""
@@ -142,10 +152,56 @@ def read_yaml(path: Path, error: type[InputError]) -> Any:
             f"contains the character U+{int(exc.character):04X} at offset {exc.position}, "
             "which YAML does not allow (is it UTF-8 text?)",
         ) from exc
-    except ValueError as exc:  # Python refuses to read integers of more than 4300 digits
-        raise error(source, "", "not valid YAML: an integer has too many digits") from exc
     except (yaml.YAMLError, RecursionError) as exc:
         raise error(source, "", f"not valid YAML: {excerpt(str(exc), 120)}") from exc
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def _check_nodes(node: Any, loader: Any, source: str, error: type[InputError]) -> None:
+    """Refuse a key given twice in a mapping, and an integer too long for Python to read.
+
+    YAML keeps the last of two equal keys without a word (a typo then silently changes a
+    value), and Python refuses to read integers of more than 4300 digits; both are refused
+    with the key path and the lines. Runs on the composed document, before it is built.
+    """
+    stack: list[tuple[list[Any], Any]] = [([], node)]
+    seen: set[int] = set()  # nodes repeated by aliases are checked once
+    while stack:
+        path, node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, yaml.MappingNode):
+            lines: dict[tuple[str, str], int] = {}
+            for key, value in node.value:
+                name = (key.tag, key.value) if isinstance(key, yaml.ScalarNode) else None
+                line = key.start_mark.line + 1
+                if name is not None and name in lines:
+                    raise error(
+                        source,
+                        key_path([*path, key.value]),
+                        f"is given twice, at lines {lines[name]} and {line}; keep one",
+                    )
+                if name is not None:
+                    lines[name] = line
+                stack.append((path, key))
+                label = key.value if isinstance(key, yaml.ScalarNode) else "?"
+                stack.append(([*path, label], value))
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend(([*path, i], item) for i, item in enumerate(node.value))
+        elif node.tag == "tag:yaml.org,2002:int":
+            try:
+                loader.construct_yaml_int(node)
+            except ValueError as exc:  # Python reads integers of at most 4300 digits
+                digits = sum(c.isdigit() for c in node.value)
+                raise error(
+                    source,
+                    key_path(path),
+                    f"an integer of {digits} digits at line {node.start_mark.line + 1}; "
+                    "is it a typo?",
+                ) from exc
 
 
 class _LimitedLoader(yaml.SafeLoader):
@@ -220,9 +276,21 @@ def _is_number(checker: Any, instance: Any) -> bool:
         return False
 
 
+def _is_integer(checker: Any, instance: Any) -> bool:
+    """JSON-schema ``integer``: a whole :func:`_is_number`.
+
+    ``minimum`` and ``maximum`` apply to numbers only: an integer too large for a float would
+    pass them unchecked.
+    """
+    whole = isinstance(instance, int) or (isinstance(instance, float) and instance.is_integer())
+    return whole and _is_number(checker, instance)
+
+
 _Validator = jsonschema.validators.extend(
     jsonschema.Draft202012Validator,
-    type_checker=jsonschema.Draft202012Validator.TYPE_CHECKER.redefine("number", _is_number),
+    type_checker=jsonschema.Draft202012Validator.TYPE_CHECKER.redefine_many(
+        {"number": _is_number, "integer": _is_integer}
+    ),
 )
 
 
@@ -414,6 +482,10 @@ def _describe(error: jsonschema.ValidationError) -> str:
 def _describe_type(shown: str, value: Any, wanted: Any, schema: Mapping[str, Any]) -> str:
     """A value of the wrong type: NaN, inf and huge integers are numbers that are not finite."""
     numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if numeric and wanted == "integer" and isinstance(value, int):  # too large for a float
+        bound = ("maximum", "<=") if value > 0 else ("minimum", ">=")
+        if bound[0] in schema:
+            return f"{shown} must be {bound[1]} {schema[bound[0]]}{_unit(schema)}"
     if numeric and wanted in ("number", "integer"):
         return f"{shown} is not a finite number"
     words = " or ".join(

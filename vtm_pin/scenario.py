@@ -868,8 +868,12 @@ def merge_includes(raw: Mapping[str, Any], source: str, base_dir: Path | None) -
     result has no ``include`` key and names every brake: merging it again changes nothing.
 
     Raises:
-        ScenarioError: A fragment or the robot data file cannot be read or breaks its schema.
+        ScenarioError: A fragment or the robot data file cannot be read or breaks its schema;
+            ``include``, ``drives``, ``brakes`` or ``assumptions`` of ``raw`` break theirs, or
+            a scenario includes itself.
     """
+    # the keys merged must have their form first (the rest of raw is checked when it is built)
+    check_schema({k: raw[k] for k in _MERGED if k in raw}, _MERGED_SCHEMA, source, ScenarioError)
     return _merge_robot_brakes(_merge_fragments(raw, source, base_dir), source, base_dir)
 
 
@@ -902,13 +906,21 @@ def _merge_fragments(
     for i, name in enumerate(raw["include"]):
         path = Path(name) if base_dir is None else base_dir / name
         key = f"include[{i}]"
+        if _same_file(path, source):
+            raise ScenarioError(
+                source,
+                key,
+                f"{excerpt(name)} is this scenario itself: an include cycle; include fragments "
+                "(drives, brakes, assumptions, calibration) only",
+            )
         try:
             fragment = read_yaml(path, ScenarioError)
         except ScenarioError as exc:
-            raise ScenarioError(source, key, f"{excerpt(name)}: {exc.problem}") from exc
+            where = f"'{exc.key}': " if exc.key else ""
+            raise ScenarioError(source, key, f"{excerpt(name)}: {where}{exc.problem}") from exc
         if not isinstance(fragment, Mapping):
             raise ScenarioError(source, key, f"{excerpt(name)} is not a mapping")
-        check_schema(fragment, FRAGMENT_SCHEMA, str(path), ScenarioError)
+        check_schema(fragment, FRAGMENT_SCHEMA, excerpt(str(path), 200), ScenarioError)
         for section in ("drives", "brakes"):
             joints = {**fragment.get(section, {})}
             for joint, spec in merged.get(section, {}).items():
@@ -921,6 +933,19 @@ def _merge_fragments(
             merged.setdefault("calibration", fragment["calibration"])
     merged["assumptions"] = assumptions + list(raw.get("assumptions", []))
     return merged
+
+
+#: The keys :func:`_merge_fragments` reads from the scenario, and their schema.
+_MERGED = ("include", "drives", "brakes", "assumptions")
+_MERGED_SCHEMA = {"type": "object", "properties": {k: SCHEMA["properties"][k] for k in _MERGED}}
+
+
+def _same_file(path: Path, source: str) -> bool:
+    """Whether ``path`` is the file ``source`` names (False if either cannot be looked at)."""
+    try:
+        return source != "" and path.exists() and path.samefile(source)
+    except (OSError, ValueError):
+        return False
 
 
 def build_integrator(spec: Mapping[str, Any], duration: float, source: str = "") -> Integrator:

@@ -14,9 +14,16 @@ range ``{min, max}`` quasi-randomly (a scrambled Halton sequence, :mod:`scipy.st
 list uniformly from its entries.
 
 An axis is a named axis of :data:`NAMED_AXES` or a scenario key path (``stop.t``,
-``brakes.elbow_joint.sliding_torque``, ``brakes.*.delay`` for every brake). Each case's
-scenario is the base scenario with its values set (:func:`resolve_case`); running it is
-:mod:`vtm_pin.study_runner`'s job.
+``brakes.elbow_joint.sliding_torque``, ``brakes.*.delay`` for every brake); no two axes may
+set the same scenario key. Each case's scenario is the base scenario with its values set
+(:func:`resolve_case`); running it is :mod:`vtm_pin.study_runner`'s job.
+
+The whole file is checked before any case runs (:func:`load_study`): the base scenario must
+pass the scenario rules and build on its own (with a stop to measure), and so must each axis
+value set alone into it (each list entry, each range's min and max). Not checked up front:
+values that are invalid only together (a ``stop.t`` axis after a ``duration`` axis's end),
+and what depends on the motion (step limits, constraints met too far away): such cases fail
+when they run, and are recorded with their message.
 """
 
 from __future__ import annotations
@@ -35,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from .exceptions import StudyError, excerpt
+from .exceptions import InputError, StudyError, VtmError, excerpt
 from .inputs import check_schema, find_shipped, read_yaml
 
 #: Folder of the studies shipped with the project: ``studies/`` at the top of the source tree,
@@ -133,20 +140,35 @@ def _fail_brake(raw: dict[str, Any], value: Any) -> None:
         )
 
 
-#: The named axes: how each sets its value into a case's scenario, and its description.
-NAMED_AXES: dict[str, tuple[Callable[[dict[str, Any], Any], None], str]] = {
-    "joint": (_set_annex_b("joint"), "joint under test (annex_b.joint)"),
-    "speed": (_set_annex_b("speed"), "fraction of the tested joint's maximum speed [-]"),
-    "extension": (_set_annex_b("extension"), "fraction of the arm's maximum reach [-]"),
-    "payload": (_set_payload, "payload mass at the tool frame [kg] (payload.mass)"),
-    "category": (_set_category, "stop category, 0 or 1 (stop.category)"),
+#: The named axes: how each sets its value into a case's scenario, its description, and the
+#: scenario key paths it sets (``*``: every key there; two axes may not set the same key).
+NAMED_AXES: dict[str, tuple[Callable[[dict[str, Any], Any], None], str, tuple[str, ...]]] = {
+    "joint": (_set_annex_b("joint"), "joint under test (annex_b.joint)", ("annex_b.joint",)),
+    "speed": (
+        _set_annex_b("speed"),
+        "fraction of the tested joint's maximum speed [-]",
+        ("annex_b.speed",),
+    ),
+    "extension": (
+        _set_annex_b("extension"),
+        "fraction of the arm's maximum reach [-]",
+        ("annex_b.extension",),
+    ),
+    "payload": (
+        _set_payload,
+        "payload mass at the tool frame [kg] (payload.mass)",
+        ("payload.mass",),
+    ),
+    "category": (_set_category, "stop category, 0 or 1 (stop.category)", ("stop.category",)),
     "brake_scale": (
         _scale_brakes,
         "worn brakes: every brake's sliding and static torque times this [-]",
+        ("brakes.*.sliding_torque", "brakes.*.static_torque"),
     ),
     "failed_brake": (
         _fail_brake,
         "single fault: this joint's brake gives no torque (none: every brake works)",
+        ("brakes.*",),
     ),
 }
 
@@ -227,16 +249,24 @@ def find_study(spec: str | Path) -> Path:
 
 
 def load_study(path: str | Path) -> Study:
-    """Read and validate a study file, and its base scenario (fragments it includes merged).
+    """Read and validate a study file whole, before any case runs.
 
-    Each case's scenario is validated when it runs (a case that breaks the scenario rules is
-    recorded as failed with its message); the axes and their values are checked here.
+    Checked here: the study file against its schema; the base scenario (fragments merged)
+    against the scenario schema, and built once (robot loaded, joints, Annex-B pose, a stop
+    to measure); every axis (a named axis or a key path of the scenario schema, no two
+    setting the same key); and every axis value (each list entry, each range's min and max)
+    set alone into the base, which must pass the schema and build in turn: one build per
+    distinct value, not per case. Not checked here: values of several axes that are invalid
+    only together (``stop.t`` after a ``duration`` of another axis), and whatever depends on
+    the motion (step limits, a constraint met too far away): such a case fails when it runs
+    and is recorded as failed with its message.
 
     Raises:
-        StudyError: The study file is missing, malformed, or its scenario cannot be read;
-            an axis is not a named axis nor a key path of the base scenario; a value of the
-            wrong kind for its axis, or listed twice; a range in a grid study; more than
-            :data:`MAX_CASES` cases.
+        StudyError: The study file is missing, malformed, or its scenario cannot be read or
+            built; an axis is not a named axis nor a key path of the base scenario, or sets a
+            key another axis sets; a value of the wrong kind for its axis, listed twice, or
+            that the scenario refuses; a range in a grid study; more than :data:`MAX_CASES`
+            cases.
     """
     path = Path(path)
     source = str(path)
@@ -249,9 +279,11 @@ def load_study(path: str | Path) -> Study:
     axes = {
         name: _axis(name, values, base, source, samples) for name, values in raw["vary"].items()
     }
+    _check_overlaps(list(axes), source)
     count = samples or int(np.prod([len(v) for v in axes.values()], dtype=float))
     if count > MAX_CASES:
         raise StudyError(source, "vary", f"{count} cases; a study may have at most {MAX_CASES}")
+    _check_values(source, scenario, base, axes)
     fingerprint = _hash(
         {
             "study": raw,
@@ -282,18 +314,124 @@ def _read_base(path: Path, spec: str) -> tuple[Path, Mapping[str, Any]]:
     local = path.parent / spec
     scenario = local
     try:
-        scenario = local if local.is_file() else find_scenario(spec)
+        # a file there (of any kind but a folder: reading refuses a pipe) wins over a shipped
+        # name (is_file would send a pipe to the shipped scenarios)
+        scenario = local if _exists(local) else find_scenario(spec)
         base = read_yaml(scenario, StudyError)
         if not isinstance(base, Mapping):
-            raise StudyError(source, "scenario", f"{scenario} is not a scenario (not a mapping)")
+            raise StudyError(
+                source, "scenario", f"{_name(scenario)} is not a scenario (not a mapping)"
+            )
         return scenario, merge_includes(base, str(scenario), scenario.parent)
     except ScenarioError as exc:
-        where = f"'{exc.key}': " if exc.key else ""
-        raise StudyError(source, "scenario", f"{where}{exc.problem}") from exc
+        raise StudyError(source, "scenario", _complaint(exc)) from exc
     except StudyError as exc:
         if exc.source == source:
             raise
-        raise StudyError(source, "scenario", f"{scenario}: {exc.problem}") from exc
+        raise StudyError(source, "scenario", _complaint(exc)) from exc
+
+
+def _exists(path: Path) -> bool:
+    """Whether ``path`` exists and is not a folder (False for a name too long, or with NUL)."""
+    try:
+        return path.exists() and not path.is_dir()
+    except (OSError, ValueError):
+        return False
+
+
+def _name(path: Path | str) -> str:
+    """A file's name for a message, cut to an excerpt (a path may be thousands of characters)."""
+    return excerpt(str(path), 200)
+
+
+def _complaint(exc: Exception) -> str:
+    """What a scenario error says: its file, key and problem."""
+    if not isinstance(exc, InputError):
+        return str(exc)
+    where = f"{_name(exc.source)}: " if exc.source else ""
+    key = f"'{exc.key}': " if exc.key else ""
+    return f"{where}{key}{exc.problem}"
+
+
+def _check_overlaps(names: Sequence[str], source: str) -> None:
+    """Refuse two axes that set the same scenario key (the table would show a value unused)."""
+    for i, name in enumerate(names):
+        for other in names[:i]:
+            for mine, theirs in itertools.product(_writes(name), _writes(other)):
+                if _overlap(mine, theirs):
+                    raise StudyError(
+                        source,
+                        f"vary.{excerpt(name)}",
+                        f"sets {excerpt(mine)}, which axis {excerpt(other)} sets too"
+                        f"{f' ({excerpt(theirs)})' if theirs != other else ''}; vary each "
+                        "scenario key in one axis only",
+                    )
+
+
+def _writes(name: str) -> tuple[str, ...]:
+    """The scenario key paths an axis sets."""
+    return NAMED_AXES[name][2] if name in NAMED_AXES else (name,)
+
+
+def _overlap(one: str, other: str) -> bool:
+    """Whether two key paths set a common key: ``*`` matches any key, a prefix overlaps."""
+    pairs = zip(one.split("."), other.split("."), strict=False)  # the shorter is a prefix
+    return all(a == b or "*" in (a, b) for a, b in pairs)
+
+
+def _check_values(
+    source: str,
+    scenario: Path,
+    base: Mapping[str, Any],
+    axes: Mapping[str, list[Any] | tuple[float, float]],
+) -> None:
+    """Build the base scenario, then each axis value set alone into it; refuse the first failure.
+
+    The robot is loaded once: the cost is one build per distinct value, not per case.
+    """
+    from .robot import RobotCache
+    from .scenario import passes_schema
+
+    loader = RobotCache()
+    valid = base if passes_schema(base) else None
+    failure = _build_case(base, {}, scenario, loader, valid)
+    if failure is not None:
+        raise StudyError(source, "scenario", _complaint(failure)) from failure
+    for name, values in axes.items():
+        for value in dict.fromkeys(values):  # a range's min and max, once if equal
+            failure = _build_case(base, {name: value}, scenario, loader, valid)
+            if failure is not None:
+                raise StudyError(
+                    source,
+                    f"vary.{excerpt(name)}",
+                    f"{_shown(value)} is refused: {_complaint(failure)}",
+                ) from failure
+
+
+def _build_case(
+    base: Mapping[str, Any],
+    values: Mapping[str, Any],
+    scenario: Path,
+    loader: Callable[..., Any],
+    valid: Mapping[str, Any] | None,
+) -> VtmError | None:
+    """Why the base with ``values`` set cannot run as a study case, or None if it can."""
+    from .scenario import build_scenario
+
+    try:
+        built = build_scenario(
+            resolve_case(base, values),
+            source=str(scenario),
+            base_dir=scenario.parent,
+            name=scenario.stem,
+            loader=loader,
+            valid=valid,
+        )
+    except VtmError as exc:
+        return exc
+    if built.stop is None:
+        return StudyError(str(scenario), "stop", "a study case needs a stop to measure")
+    return None
 
 
 #: The kind of value each named axis takes: a test on one value, and what is allowed.
