@@ -21,7 +21,7 @@ from vtm_pin.exceptions import ScenarioError
 from vtm_pin.inputs import read_yaml
 from vtm_pin.robot import ROBOTS_DIR
 from vtm_pin.scenario import SCENARIOS_DIR
-from vtm_pin.study import STUDIES_DIR, find_study, load_study
+from vtm_pin.study import STUDIES_DIR, find_study, load_study, resolve_case
 
 ROOT = Path(__file__).resolve().parent.parent
 #: The shipped base scenario of the test studies.
@@ -170,6 +170,16 @@ def test_axes_setting_different_keys_are_accepted(tmp_path: Path) -> None:
     vary = "{speed: [1.0], annex_b.extension: [0.5], brakes.*.delay: [0.0]}"
     path = study_file(tmp_path, shipped(vary))
     assert list(load_study(path).axes) == ["speed", "annex_b.extension", "brakes.*.delay"]
+
+
+def test_a_failed_brake_goes_with_axes_that_set_every_brake(tmp_path: Path) -> None:
+    """failed_brake removes one brake; brake_scale and brakes.*.delay set the others."""
+    vary = "{failed_brake: [none, elbow_joint], brake_scale: [0.8], brakes.*.delay: [0.05]}"
+    study = load_study(study_file(tmp_path, shipped(vary)))
+    raw = resolve_case(study.base, study.cases()[1].values)
+    assert raw["brakes"]["elbow_joint"] is None
+    others = [spec for spec in raw["brakes"].values() if spec is not None]
+    assert others and all(spec["delay"] == 0.05 for spec in others)
 
 
 def test_a_key_given_twice_in_a_study_is_refused(

@@ -168,7 +168,7 @@ NAMED_AXES: dict[str, tuple[Callable[[dict[str, Any], Any], None], str, tuple[st
     "failed_brake": (
         _fail_brake,
         "single fault: this joint's brake gives no torque (none: every brake works)",
-        ("brakes.*",),
+        ("brakes.+",),
     ),
 }
 
@@ -374,9 +374,19 @@ def _writes(name: str) -> tuple[str, ...]:
 
 
 def _overlap(one: str, other: str) -> bool:
-    """Whether two key paths set a common key: ``*`` matches any key, a prefix overlaps."""
+    """Whether two key paths set a common key: ``*`` matches any key, a prefix overlaps.
+
+    ``+`` (the brake ``failed_brake`` removes) overlaps a named key, not ``*``: every other
+    brake still takes a ``*`` axis's value, and the removed one has none to take.
+    """
     pairs = zip(one.split("."), other.split("."), strict=False)  # the shorter is a prefix
-    return all(a == b or "*" in (a, b) for a, b in pairs)
+    return all(_same_key(a, b) for a, b in pairs)
+
+
+def _same_key(a: str, b: str) -> bool:
+    if "+" in (a, b):
+        return "*" not in (a, b)
+    return a == b or "*" in (a, b)
 
 
 def _check_values(
