@@ -282,6 +282,28 @@ def running(pid: int) -> bool:
     return stat.rsplit(b")", 1)[1].split()[0] not in (b"Z", b"X")
 
 
+#: Seconds a process that has closed its files may take to finish exiting (become a zombie).
+EXITING = 2.0
+
+
+def survivors(pids: set[int]) -> list[str]:
+    """The command lines of ``pids`` still running once :data:`EXITING` seconds have passed.
+
+    A process killed closes its files (the pipe's end: ``communicate`` returns) before the
+    kernel has made it a zombie; it is given that moment.
+    """
+    deadline = time.monotonic() + EXITING
+    while (alive := [pid for pid in pids if running(pid)]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    lines = []
+    for pid in alive:
+        try:
+            lines.append(f"{pid}: {Path(f'/proc/{pid}/cmdline').read_bytes()[:200]!r}")
+        except OSError:  # gone meanwhile
+            pass
+    return lines
+
+
 def start_pool(tmp_path: Path, engine: str) -> tuple[subprocess.Popen[str], Path, set[int]]:
     """``vtm-pin study`` on 2 workers, once both workers run (its fork server, resource
     tracker and 2 workers are up); returns the process, its output folder, its descendants."""
@@ -310,7 +332,7 @@ def test_workers_die_with_a_zombie_driver(tmp_path: Path) -> None:
     process.communicate(timeout=ORPHAN_EXIT)
     assert time.monotonic() - begin < ORPHAN_EXIT
     assert process.returncode == -signal.SIGKILL
-    assert not [pid for pid in tree if running(pid)]
+    assert not survivors(tree)
     assert not (out / "results.parquet").exists()
 
 
@@ -327,7 +349,7 @@ def interrupt_pool(tmp_path: Path, when: str) -> None:
     assert time.monotonic() - begin < INTERRUPT_EXIT, err
     assert process.returncode == EXIT_INTERRUPTED
     assert err.startswith("vtm-pin: interrupted; ") and "run the same command again" in err, err
-    assert not [pid for pid in tree if running(pid)]
+    assert not survivors(tree)
     assert not (out / "results.parquet").exists()
 
 
@@ -351,7 +373,7 @@ def test_a_pool_that_finishes_shuts_down_cleanly() -> None:
     records = list(executors.on_pool(pieces, _records, 2))
     assert sorted(r["case"] for r in records) == [1, 2, 3, 4, 5, 6]
     workers = {r["pid"] for r in records}
-    assert os.getpid() not in workers and not [pid for pid in workers if running(pid)]
+    assert os.getpid() not in workers and not survivors(workers)
 
 
 def test_closing_the_records_early_terminates_the_workers() -> None:
@@ -400,4 +422,5 @@ def test_the_workers_of_a_bare_pool_die_with_their_zombie_driver(tmp_path: Path)
     begin = time.monotonic()
     process.communicate(timeout=ORPHAN_EXIT)
     assert time.monotonic() - begin < ORPHAN_EXIT
-    assert len(tree) >= 3 and not [pid for pid in tree if running(pid)]
+    assert len(tree) >= 3
+    assert not survivors(tree)

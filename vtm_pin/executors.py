@@ -16,13 +16,15 @@ case is.
   settings give the client its certificates (``distributed.comm.tls.ca-file``,
   ``distributed.comm.tls.client.cert`` and ``.key`` in the Dask configuration, e.g. the
   variables ``DASK_DISTRIBUTED__COMM__TLS__CA_FILE`` ...); anything else (``inproc://``,
-  ``ws://``, ``ucx://``, no scheme) is refused. Every step is bounded in time and ends, if it
-  fails, in one :class:`~vtm_pin.exceptions.StudyError` naming ``--scheduler``: the
-  scheduler must accept the connection and send a Dask handshake within
-  :data:`CONNECT_TIMEOUT` seconds (the handshake is read here, at most
-  :data:`HANDSHAKE_LIMIT` bytes, before Dask's client is made: a port that answers
-  something else is refused without trusting what it says), and the cluster must have a
-  worker within :data:`WORKERS_TIMEOUT` seconds.
+  ``ws://``, ``ucx://``, no scheme) is refused. Each step is bounded in time and ends, if it
+  fails, in one :class:`~vtm_pin.exceptions.StudyError` naming ``--scheduler`` (nothing more
+  is printed, at exit either): the scheduler must accept the connection (refusals are tried
+  again meanwhile) and send a Dask handshake within :data:`CONNECT_TIMEOUT` seconds (read
+  here, at most :data:`HANDSHAKE_LIMIT` bytes, before Dask's client is made: a port that
+  answers something else is refused without trusting what it says); it must then say it is
+  a scheduler (not a worker) within :data:`CONNECT_TIMEOUT` seconds; and the cluster must
+  have a worker within :data:`WORKERS_TIMEOUT` seconds. Only a scheduler that passes these
+  checks and then stops answering is left to Dask's own time-outs.
 """
 
 from __future__ import annotations
@@ -388,7 +390,8 @@ def dask_workers(client: Any) -> int:
 def on_dask(pieces: Sequence[list[Any]], work: Work, client: Any) -> Iterator[dict]:
     """Run ``work`` on each piece on the cluster of ``client``; yield the records.
 
-    The client is closed when the pieces are done (or the generator is closed).
+    The client is closed when the pieces are done (or the generator is closed), within
+    :data:`CONNECT_TIMEOUT` seconds.
     """
     from dask.distributed import as_completed
 
@@ -399,4 +402,4 @@ def on_dask(pieces: Sequence[list[Any]], work: Work, client: Any) -> Iterator[di
         for future in as_completed(futures, loop=client.loop):
             yield from future.result()
     finally:
-        client.close()
+        _close(client)
