@@ -17,6 +17,7 @@ robot model once (a :class:`~vtm_pin.robot.RobotCache`), not once per case.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -30,7 +31,7 @@ import sys
 import tempfile
 import time
 import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -614,15 +615,19 @@ def _run_held(
     ]
     begin_cases = time.perf_counter()
     local = client is None  # local workers store each case themselves, as it finishes
-    for record in _execute(tasks, workers or default_workers(), client, engine, out):
-        if local:
-            store.records[record["case"]] = record
-        else:
-            begin = time.perf_counter()
-            store.save(record)
-            record["timing"]["write"] = time.perf_counter() - begin  # this run's
-        if progress is not None:
-            progress(len(store.records), len(cases))
+    # closing: an interruption ends the workers at once, before the stored cases are counted
+    with contextlib.closing(
+        _execute(tasks, workers or default_workers(), client, engine, out)
+    ) as run:
+        for record in run:
+            if local:
+                store.records[record["case"]] = record
+            else:
+                begin = time.perf_counter()
+                store.save(record)
+                record["timing"]["write"] = time.perf_counter() - begin  # this run's
+            if progress is not None:
+                progress(len(store.records), len(cases))
     records = [store.records[case.id] for case in cases]
     _refuse_all_failed(study, records)
     count = workers or default_workers()
@@ -696,20 +701,24 @@ def _chunks(tasks: Sequence[CaseTask], workers: int, engine: str) -> list[list[C
 
 def _execute(
     tasks: Sequence[CaseTask], workers: int, client: Any | None, engine: str, out: Path
-) -> Iterator[dict]:
+) -> Generator[dict, None, None]:
     """Run the tasks; yields each record as soon as its piece is done (in any order).
 
     Local workers (this process, or a pool on this machine) store each record in ``out`` as
-    its case finishes; a cluster's records are stored by the caller.
+    its case finishes; a cluster's records are stored by the caller. Closing the generator
+    ends the workers at once.
     """
     if client is not None:
         chunks = _chunks(tasks, 4 * dask_workers(client), engine) if tasks else []
-        return on_dask(chunks, functools.partial(run_cases, engine=engine), client)
+        yield from on_dask(chunks, functools.partial(run_cases, engine=engine), client)
+        return
     work = functools.partial(run_cases, engine=engine, store=str(out))
     chunks = _chunks(tasks, workers, engine)
     if workers <= 1 or len(chunks) <= 1:
-        return (record for chunk in chunks for record in work(chunk))
-    return on_pool(chunks, work, min(workers, len(chunks)))
+        for chunk in chunks:
+            yield from work(chunk)
+        return
+    yield from on_pool(chunks, work, min(workers, len(chunks)))
 
 
 def _finish(
