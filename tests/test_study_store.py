@@ -348,14 +348,12 @@ def test_ctrl_c_at_a_random_time_exits_promptly_and_keeps_finished_cases(
     while not list(cases.glob("*.json")) and time.monotonic() < deadline:
         assert process.poll() is None, "the study ended before the first case was stored"
         time.sleep(0.005)
-    time.sleep(random.Random(seed).uniform(0.0, 1.0))
+    time.sleep(random.Random(seed).uniform(0.0, 0.3))  # the rest and the outputs take longer
     before = {p.name: p.read_bytes() for p in cases.glob("*.json")}
     signalled = time.monotonic()
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
     took = time.monotonic() - signalled
-    if process.returncode == 0:  # it finished before the signal arrived: nothing to check
-        pytest.skip("the study finished before the signal")
     assert process.returncode == 130 and took < 5.0, (process.returncode, took, err)
     assert err.count("\n") == 1 and "interrupted" in err and "Traceback" not in err
     for name, data in before.items():
