@@ -10,8 +10,7 @@ from __future__ import annotations
 import signal
 import sys
 
-#: Exit status after Ctrl-C (as :data:`vtm_pin.cli.EXIT_INTERRUPTED`).
-EXIT_INTERRUPTED = 130
+from .interrupts import EXIT_INTERRUPTED, forget_interrupt
 
 
 def entry_point() -> int:
@@ -46,17 +45,6 @@ def entry_point() -> int:
         print("vtm-pin: interrupted; nothing written", file=sys.stderr)
         return EXIT_INTERRUPTED
     return main()
-
-
-def forget_interrupt() -> None:
-    """Let a caught Ctrl-C end the process with its exit status, not by SIGINT.
-
-    CPython marks a KeyboardInterrupt raised inside code that ``exec`` runs from a string
-    (``namedtuple`` and others do so while modules are imported) as unhandled, even once it
-    is caught, and then ends the process by SIGINT (status -2) whatever ``sys.exit`` asked.
-    Running a string through ``exec`` clears that mark.
-    """
-    exec("pass")
 
 
 if __name__ == "__main__":

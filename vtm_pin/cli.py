@@ -20,7 +20,6 @@ from typing import Any, NoReturn
 import numpy as np
 from tqdm import tqdm
 
-from .__main__ import forget_interrupt
 from .calibration import (
     DISTANCE_SCATTER,
     FIGURES,
@@ -51,6 +50,7 @@ from .exceptions import (
     excerpt,
 )
 from .integrators import INTEGRATORS
+from .interrupts import EXIT_INTERRUPTED, forget_interrupt
 from .pipeline import Progress, check_output_folder, find_scenario, run, write_outputs
 from .report import format_figures, format_stopping, format_summary, integrator_settings
 from .robot import list_example_robots, list_local_robots, load_robot
@@ -62,7 +62,7 @@ from .transitions import TRANSITIONS
 
 #: Exit codes: success, a user error (bad scenario, robot or option value), bad usage of the
 #: command line, interrupted by Ctrl-C. Nothing is written unless the code is EXIT_OK.
-EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
 #: A run shows a progress bar (on a terminal) once it has taken this long [s].
 PROGRESS_DELAY = 1.0
 #: Longest message printed [characters]; every message is one line.

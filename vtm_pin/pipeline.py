@@ -14,16 +14,16 @@ import os
 import tempfile
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-from .analysis import EnergyMomentum, compute_energy_momentum
+from .analysis import compute_energy_momentum
 from .exceptions import OutputError, ScenarioError, VtmWarning
-from .figures import StopFigures, bound_variants, bounded, stop_figures
+from .figures import bound_variants, bounded, stop_figures
 from .inputs import find_shipped
 from .report import build_summary, write_trajectory
 from .results import SimulationResult
+from .run_output import RunOutput
 from .scenario import SCENARIOS_DIR, Scenario, load_scenario, run_scenario
 from .staging import write_staged
 from .stopping import StoppingReport, compute_stopping_report
@@ -36,43 +36,6 @@ Progress = Callable[[str, float], None]
 
 #: Resolution of the saved PNG figures [dots per inch].
 FIGURE_DPI = 120
-
-
-@dataclass(frozen=True)
-class RunOutput:
-    """Everything one run of a scenario produced: results, energies, reports and summary.
-
-    Attributes:
-        scenario: The scenario that was run.
-        results: Simulation per transition rule, the main rule first.
-        energies: Energies and momenta at every sample, per rule.
-        stopping: Stopping report per rule; empty if the scenario has no stop.
-        summary: The JSON-ready summary of ``summary.json`` (keys documented in the README).
-        figures: The main run's signed figures and flags (:mod:`vtm_pin.figures`); None
-            without a stop.
-    """
-
-    scenario: Scenario
-    results: Mapping[str, SimulationResult]
-    energies: Mapping[str, EnergyMomentum]
-    stopping: Mapping[str, StoppingReport]
-    summary: Mapping[str, Any]
-    figures: StopFigures | None = None
-
-    @property
-    def rule(self) -> str:
-        """The main run's transition rule."""
-        return next(iter(self.results))
-
-    @property
-    def result(self) -> SimulationResult:
-        """The main run's simulation."""
-        return self.results[self.rule]
-
-    @property
-    def runs(self) -> dict[str, tuple[SimulationResult, EnergyMomentum]]:
-        """``{rule: (result, energy)}``, as the functions of :mod:`vtm_pin.plotting` take."""
-        return {rule: (result, self.energies[rule]) for rule, result in self.results.items()}
 
 
 def find_scenario(spec: str | Path) -> Path:

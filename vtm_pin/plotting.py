@@ -21,7 +21,7 @@ from .results import SimulationResult
 from .stopping import StoppingReport
 
 if TYPE_CHECKING:
-    from .pipeline import RunOutput
+    from .run_output import RunOutput
 
 Runs = Mapping[str, tuple[SimulationResult, EnergyMomentum]]
 Values = Callable[[SimulationResult, EnergyMomentum], np.ndarray]
