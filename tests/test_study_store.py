@@ -89,9 +89,11 @@ def test_a_stored_record_carries_its_case_and_a_checksum(finished: tuple[Path, P
     for case in study.cases():
         record = json.loads((out / CASES_FOLDER / f"{case.id}.json").read_text())
         assert record["case"] == case.id and len(record["checksum"]) == 64
-        assert check_record(record, case) is None
+        assert check_record(record, case, study.fingerprint) is None
+        # the same case of another study (its base differs): not this study's record
+        assert "another study" in str(check_record(record, case, "0" * 64))
         record["metrics"]["robot_stop_time"] = 0.001  # a changed figure: the checksum fails
-        assert "checksum" in str(check_record(record, case))
+        assert "checksum" in str(check_record(record, case, study.fingerprint))
 
 
 def _copy_over(out: Path, cases: list[str]) -> str:
@@ -148,9 +150,10 @@ def test_a_damaged_record_is_computed_again_and_said_so(
     table = pd.read_parquet(out / "results.parquet")
     assert table["case"].is_unique and len(table) == len(cases)
     pd.testing.assert_frame_equal(physics(table), physics(clean[1]))
-    for case in load_study(path).cases():  # every record is whole again
+    study = load_study(path)
+    for case in study.cases():  # every record is whole again
         record = json.loads((out / CASES_FOLDER / f"{case.id}.json").read_text())
-        assert check_record(record, case) is None
+        assert check_record(record, case, study.fingerprint) is None
 
 
 def test_records_without_a_study_file_are_a_changed_study(
@@ -286,6 +289,27 @@ def test_a_run_that_writes_nothing_leaves_no_folder(
     code = main(["study", str(path), "--out", str(out), "--scheduler", "inproc://x:1"])
     one_error_line(capsys.readouterr().err)
     assert code == 1 and not out.exists()
+
+
+def test_a_refused_run_never_removes_the_folder_another_holds(tmp_path: Path) -> None:
+    """The loser of a race for a new folder must leave the winner's (still empty) folder."""
+    from vtm_pin.exceptions import OutputError
+    from vtm_pin.staging import output_lock
+
+    fcntl = pytest.importorskip("fcntl")
+    out = tmp_path / "new"
+    out.mkdir()  # made by the winner, nothing in it yet
+    fd = os.open(out, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        with pytest.raises(OutputError, match="being written by another"), output_lock(out):
+            pass
+        assert out.is_dir()
+    finally:
+        os.close(fd)
+    with output_lock(tmp_path / "mine"):  # a folder this run made and left empty: removed
+        assert (tmp_path / "mine").is_dir()
+    assert not (tmp_path / "mine").exists()
 
 
 # -- staging folders of killed runs are cleaned up --------------------------------------------

@@ -232,7 +232,7 @@ def connect(scheduler: str) -> Any:
     try:
         client.wait_for_workers(1, timeout=WORKERS_TIMEOUT)
     except BaseException as exc:  # Ctrl-C as well: the client is closed, not left to exit
-        _close(client)
+        close(client)
         if not isinstance(exc, (OSError, TimeoutError)):
             raise
         raise _refusal(
@@ -374,7 +374,7 @@ def _decode(body: bytes) -> Any:
         return None
 
 
-def _close(client: Any) -> None:
+def close(client: Any) -> None:
     """Close a client, quietly and within :data:`CONNECT_TIMEOUT` seconds."""
     try:
         client.close(timeout=CONNECT_TIMEOUT)
@@ -402,4 +402,4 @@ def on_dask(pieces: Sequence[list[Any]], work: Work, client: Any) -> Iterator[di
         for future in as_completed(futures, loop=client.loop):
             yield from future.result()
     finally:
-        _close(client)
+        close(client)

@@ -1,10 +1,10 @@
 """Output folders: one run at a time, and their files written all at once.
 
 :func:`output_lock` makes an output folder belong to one run: a second run into the same
-folder, from this machine or another sharing the file system, is refused in one line while
-the first holds it. :func:`write_staged` writes a run's files into a staging folder beside the
-output folder and then moves them in together; a staging folder left by a run killed outright
-is removed by the next run into the same folder.
+folder is refused in one line while the first holds it (``flock``: on one machine, and on
+network file systems that carry it). :func:`write_staged` writes a run's files into a staging
+folder beside the output folder and then moves them in together; a staging folder left by a
+run killed outright is removed by the next run into the same folder.
 """
 
 from __future__ import annotations
@@ -14,11 +14,12 @@ import hashlib
 import os
 import shutil
 import tempfile
+import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from .exceptions import OutputError
+from .exceptions import OutputError, VtmWarning
 
 #: Output folders this process holds (a run's own nested writes do not lock again).
 _HELD: set[str] = set()
@@ -29,35 +30,45 @@ def output_lock(out: str | Path) -> Iterator[None]:
     """Hold ``out`` (created if missing) for this run; refuse if another run holds it.
 
     The lock is an exclusive ``flock`` on the folder itself, so it leaves no file behind and
-    ends with the process however it ends. Where there is no ``flock`` (Windows) or the file
-    system does not support it, the folder is used without a lock.
+    ends with the process however it ends. Where there is no ``flock`` (Windows) the folder is
+    used without a lock; where the file system refuses it, too, with a warning line.
 
     Raises:
         OutputError: Another run holds the folder, or it cannot be created.
     """
     out = Path(out)
-    created = not os.path.lexists(out)
+    created = False
     try:
         key = str(out.resolve())
-        out.mkdir(parents=True, exist_ok=True)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.mkdir(out)
+            created = True  # by this run: removed again if it writes nothing
+        except FileExistsError:
+            pass
         fd = os.open(out, os.O_RDONLY)
     except (OSError, RuntimeError) as exc:
         where = getattr(exc, "filename", None) or out
         reason = getattr(exc, "strerror", None) or exc
         raise OutputError(str(out), f"cannot write into '{where}' ({reason})") from exc
-    nested = key in _HELD
+    if key in _HELD:  # this run's own nested write
+        os.close(fd)
+        yield
+        return
     try:
-        if not nested:
-            _lock(fd, out)
-            _HELD.add(key)
+        _lock(fd, out)
+    except BaseException:
+        os.close(fd)
+        raise
+    _HELD.add(key)
+    try:
         yield
     finally:
-        if not nested:
-            _HELD.discard(key)
-        os.close(fd)  # releases the lock
-        if created:  # nothing was written: leave nothing
+        _HELD.discard(key)
+        if created:  # nothing written: leave nothing (while still holding the folder)
             with contextlib.suppress(OSError):
                 out.rmdir()
+        os.close(fd)  # releases the lock
 
 
 def _lock(fd: int, out: Path) -> None:
@@ -74,8 +85,13 @@ def _lock(fd: int, out: Path) -> None:
             f"'{out}' is being written by another vtm-pin run; wait for it to end, or choose "
             "another --out",
         ) from exc
-    except OSError:  # a file system without flock: go on without the lock
-        return
+    except OSError as exc:  # a file system without flock: go on, but say so
+        warnings.warn(
+            f"'{out}' cannot be locked ({exc.strerror or exc}): another run writing into it at "
+            "the same time would not be refused",
+            VtmWarning,
+            stacklevel=4,
+        )
 
 
 def _staging_prefix(out: Path) -> str:

@@ -441,6 +441,13 @@ def _build_case(
         return exc
     if built.stop is None:
         return StudyError(str(scenario), "stop", "a study case needs a stop to measure")
+    if built.bounds is not None:  # its bounds' variant runs must build too
+        from .figures import bound_variants
+
+        try:
+            bound_variants(built, loader)
+        except VtmError as exc:
+            return exc
     return None
 
 

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 from .batch import ENGINES, PARTS
 from .exceptions import OutputError, StudyError, VtmError, VtmWarning, excerpt
-from .executors import connect, dask_workers, on_dask, on_pool
+from .executors import close, connect, dask_workers, on_dask, on_pool
 from .figures import DEFINITIONS as FIGURE_DEFINITIONS
 from .figures import METRICS
 from .flags import KINDS as FLAG_KINDS
@@ -84,6 +84,7 @@ class CaseTask:
         source: The base scenario file, for messages.
         name: The base scenario's name.
         case: The case.
+        study: The study's fingerprint, carried by the case's record.
     """
 
     base: Mapping[str, Any]
@@ -91,6 +92,7 @@ class CaseTask:
     source: str
     name: str
     case: Case
+    study: str = ""
 
 
 @dataclass(frozen=True)
@@ -151,7 +153,12 @@ def run_cases(
     built: list[tuple[dict[str, Any], Any, list[Any]]] = []  # record, scenario, bound variants
     for task in tasks:
         case = task.case
-        record: dict[str, Any] = {"case": case.id, "index": case.index, "values": dict(case.values)}
+        record: dict[str, Any] = {
+            "case": case.id,
+            "study": task.study,
+            "index": case.index,
+            "values": dict(case.values),
+        }
         records.append(record)
         start = time.perf_counter()
         try:
@@ -324,6 +331,7 @@ def _one_line(text: str) -> str:
 #: Keys every stored case record has, and the JSON types of their values.
 RECORD_KEYS: dict[str, type | tuple[type, ...]] = {
     "case": str,
+    "study": str,
     "index": int,
     "values": dict,
     "status": str,
@@ -358,18 +366,26 @@ def save_record(folder: Path, record: dict[str, Any]) -> None:
     """
     path = folder / CASES_FOLDER / f"{record['case']}.json"
     try:
-        _write_atomic(path, seal(record))
+        text = seal(record)
+    except ValueError:  # a figure that is NaN or infinite: the case failed, it is not a result
+        kept = {k: record[k] for k in ("case", "study", "index", "values", "timing", "wall_time")}
+        record.clear()
+        record.update(kept)
+        _record_error(record, StudyError("", "", "a figure came out NaN or infinite; not a result"))
+        text = seal(record)
+    try:
+        _write_atomic(path, text)
     except OSError as exc:
         raise OutputError(
             str(folder), f"cannot write the case record '{path}' ({exc.strerror or exc})"
         ) from exc
 
 
-def check_record(record: Any, case: Case) -> str | None:
-    """Why a stored record cannot be kept for ``case`` (None if it can).
+def check_record(record: Any, case: Case, study: str) -> str | None:
+    """Why a stored record cannot be kept for ``case`` of the study ``study`` (None if it can).
 
-    It must have the shape of :data:`RECORD_KEYS`, the case's id and axis values, finite
-    metrics, and a checksum that matches its content.
+    It must have the shape of :data:`RECORD_KEYS`, the case's id and axis values, the study's
+    fingerprint, finite metrics, and a checksum that matches its content.
     """
     if not isinstance(record, dict):
         return "not a record (a mapping)"
@@ -378,6 +394,8 @@ def check_record(record: Any, case: Case) -> str | None:
             return f"'{key}' is missing or of the wrong type"
     if record["case"] != case.id:
         return f"it holds case {excerpt(record['case'])}"
+    if record["study"] != study:
+        return "it was computed for another study (or before it changed)"
     body = {k: v for k, v in record.items() if k != "checksum"}
     try:
         if record["checksum"] != _digest(body):
@@ -411,12 +429,14 @@ class CaseStore:
         study: The study.
         records: Case id -> record, of the cases stored so far.
         rejected: Stored records that were not kept (file name -> why); they are run again.
+        fresh: Whether :meth:`open` started the folder (it held no study before).
     """
 
     folder: Path
     study: Study
     records: dict[str, dict[str, Any]] = field(default_factory=dict)
     rejected: dict[str, str] = field(default_factory=dict)
+    fresh: bool = False
 
     @property
     def cases_folder(self) -> Path:
@@ -447,10 +467,13 @@ class CaseStore:
                 target = state_path
                 state = {"study": self.study.source, "fingerprint": self.study.fingerprint}
                 _write_atomic(state_path, json.dumps(state, indent=2) + "\n")
+                self.fresh = True
         except OSError as exc:
             raise OutputError(
                 str(self.folder), f"cannot write '{target}' ({exc.strerror or exc})"
             ) from exc
+        for partial in self.cases_folder.glob(".*.json.*"):  # a killed writer's temporary file
+            partial.unlink(missing_ok=True)
         for case in cases:
             path = self.cases_folder / f"{case.id}.json"
             if not os.path.lexists(path):
@@ -460,7 +483,7 @@ class CaseStore:
             except (StudyError, ValueError) as exc:
                 self.rejected[path.name] = f"cannot be read ({_one_line(str(exc))[:120]})"
                 continue
-            reason = check_record(record, case)
+            reason = check_record(record, case, self.study.fingerprint)
             if reason is None:
                 self.records[case.id] = record
             else:
@@ -502,6 +525,16 @@ class CaseStore:
             )
         if state["fingerprint"] != self.study.fingerprint:
             raise StudyError(self.study.source, "", changed)
+
+    def discard(self) -> None:
+        """Remove what this run wrote into a folder it started (a study that cannot run)."""
+        if not self.fresh:
+            return
+        for case in self.records:
+            (self.cases_folder / f"{case}.json").unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            self.cases_folder.rmdir()
+        (self.folder / STATE_FILE).unlink(missing_ok=True)
 
     def save(self, record: dict[str, Any]) -> None:
         """Store one finished case (see :func:`save_record`)."""
@@ -588,7 +621,7 @@ def run_study(
             return _run_held(study, out, workers, (client, scheduler), progress, engine)
     finally:
         if client is not None:
-            client.close()
+            close(client)
 
 
 def _run_held(
@@ -610,7 +643,9 @@ def _run_held(
         progress(len(cases) - len(todo), len(cases))
     base_dir = str(study.scenario.parent)
     tasks = [
-        CaseTask(study.base, base_dir, str(study.scenario), study.scenario.stem, case)
+        CaseTask(
+            study.base, base_dir, str(study.scenario), study.scenario.stem, case, study.fingerprint
+        )
         for case in todo
     ]
     begin_cases = time.perf_counter()
@@ -629,7 +664,11 @@ def _run_held(
             if progress is not None:
                 progress(len(store.records), len(cases))
     records = [store.records[case.id] for case in cases]
-    _refuse_all_failed(study, records)
+    try:
+        _refuse_all_failed(study, records)
+    except StudyError:
+        store.discard()  # a study that cannot run leaves nothing
+        raise
     count = workers or default_workers()
     executor = f"dask {where}" if client is not None else f"{count} worker{'s' * (count > 1)}"
     begin_outputs = time.perf_counter()
@@ -678,8 +717,7 @@ def _refuse_all_failed(study: Study, records: Sequence[Mapping[str, Any]]) -> No
         raise StudyError(
             study.source,
             "",
-            f"all {len(statuses)} cases failed (nothing written but the case records); the "
-            f"first: {statuses[0].removeprefix('error: ')}",
+            f"all {len(statuses)} cases failed; the first: {statuses[0].removeprefix('error: ')}",
         )
 
 
