@@ -298,3 +298,10 @@ def test_a_folder_beside_the_study_does_not_hide_a_shipped_base(tmp_path: Path) 
     (tmp_path / "ur10_annex_b").mkdir()  # a results folder named like the shipped scenario
     study = load_study(study_file(tmp_path, shipped("{speed: [1.0]}")))
     assert study.scenario == SCENARIOS_DIR / "ur10_annex_b.yaml"
+
+
+def test_a_whole_number_written_as_a_float_is_taken(tmp_path: Path) -> None:
+    """``samples: 3.0`` (YAML reads 3e0 as a float too) is 3 cases, not an internal error."""
+    text = shipped("{speed: {min: 0.5, max: 1.0}}", more="samples: 3.0\n")
+    study = load_study(study_file(tmp_path, text))
+    assert study.samples == 3 and len(study.cases()) == 3

@@ -275,7 +275,7 @@ def load_study(path: str | Path) -> Study:
         raise StudyError(source, "", "a study must be a mapping of keys to values")
     check_schema(raw, STUDY_SCHEMA, source, StudyError)
     scenario, base = _read_base(path, str(raw["scenario"]))
-    samples = raw.get("samples")
+    samples = None if raw.get("samples") is None else int(raw["samples"])  # 3.0 is 3
     axes = {
         name: _axis(name, values, base, source, samples) for name, values in raw["vary"].items()
     }
