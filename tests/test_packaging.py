@@ -89,7 +89,7 @@ def run_checked(command: list[str], cwd: Path) -> subprocess.CompletedProcess[st
 
 
 def check_installed_wheel(python: Path, elsewhere: Path) -> None:
-    """vtm_pin, its robots and scenarios come from the wheel; the two commands work."""
+    """vtm_pin, its robots and scenarios come from the wheel; run, list and init work."""
     code = (
         "import vtm_pin, vtm_pin.robot as r, vtm_pin.scenario as s; "
         "print(vtm_pin.__file__); print(r.ROBOTS_DIR); print(s.SCENARIOS_DIR)"
@@ -109,6 +109,14 @@ def check_installed_wheel(python: Path, elsewhere: Path) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["robot"] == "planar_3r" and len(summary["events"]) == 2
     assert Path(summary["urdf"]).resolve().is_relative_to(env_root)
+    # a shipped scenario copied here (with the fragment it includes) runs from its copy
+    run_checked(
+        [str(vtm_pin), "init", "scenario", "ur5_cb3_annex_b", "--to", "mine"], cwd=elsewhere
+    )
+    run_checked(
+        [str(vtm_pin), "run", "mine/ur5_cb3_annex_b.yaml", "--quiet", "--no-plots"], cwd=elsewhere
+    )
+    assert (elsewhere / "results" / "ur5_cb3_annex_b" / "summary.json").is_file()
 
 
 def test_pyproject_lists_every_package():

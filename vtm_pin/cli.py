@@ -1,4 +1,4 @@
-"""Command line: ``vtm-pin run SCENARIO``, ``vtm-pin study STUDY`` and ``vtm-pin list``."""
+"""Command line: ``vtm-pin run SCENARIO``, ``study STUDY``, ``calibrate``, ``list``, ``init``."""
 
 from __future__ import annotations
 
@@ -49,14 +49,16 @@ from .exceptions import (
     VtmWarning,
     excerpt,
 )
+from .inputs import read_yaml
 from .integrators import INTEGRATORS
 from .interrupts import EXIT_INTERRUPTED, forget_interrupt
 from .pipeline import Progress, check_output_folder, find_scenario, run, write_outputs
 from .report import format_figures, format_stopping, format_summary, integrator_settings
-from .robot import list_example_robots, list_local_robots, load_robot
+from .robot import ROBOTS_DIR, list_example_robots, list_local_robots, load_robot
 from .scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
+from .shipped import KINDS, init_files, shipped_names
 from .stopping_table import read_stopping_table
-from .study import Study, find_study, load_study
+from .study import STUDIES_DIR, Study, find_study, load_study
 from .study_runner import CASES_FOLDER, format_study, run_study
 from .transitions import TRANSITIONS
 
@@ -85,6 +87,7 @@ examples:
   vtm-pin study ur10_annex_b --out results/ur10_annex_b --workers 2
   vtm-pin calibrate table.csv --robot ur5_cb3 --out results/ur5_cb3_calibration
   vtm-pin list scenarios
+  vtm-pin init scenario ur10_annex_b
 """
 
 
@@ -234,15 +237,16 @@ def _parser() -> argparse.ArgumentParser:
 
     listing = sub.add_parser(
         "list",
-        help="list the robots or scenarios that can be run",
+        help="list the robots, scenarios or studies that can be run, and where they live",
         description=_wrap(
-            "List the shipped robots (and the example-robot-data names), or the scenario "
-            "files of a folder."
+            "List the shipped robots (and the example-robot-data names), the scenario "
+            "files of a folder, or the shipped studies, with the folder they are in "
+            "('vtm-pin init' copies one here to start from)."
         ),
         epilog=_EPILOG,
         formatter_class=formatter,
     )
-    listing.add_argument("what", choices=["robots", "scenarios"])
+    listing.add_argument("what", choices=["robots", "scenarios", "studies"])
     listing.add_argument(
         "--dir",
         type=Path,
@@ -258,7 +262,40 @@ def _parser() -> argparse.ArgumentParser:
     )
     listing.add_argument("--json", action="store_true", help="print the list as JSON")
     listing.set_defaults(func=_list)
+    _init_parser(sub, formatter)
     return parser
+
+
+def _init_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
+    init = sub.add_parser(
+        "init",
+        help="copy a shipped scenario, study or robot here, to start from",
+        description=_wrap(
+            "Copy the shipped KIND named NAME (see 'vtm-pin list') into --to, to edit and run "
+            "from there. The copy works where it lands: a study names its base scenario by "
+            "its shipped name, a scenario's included fragments are copied beside it, a robot "
+            "comes as its URDF and its data file (drives, brakes, rated payload) side by "
+            "side. Existing files are never replaced: nothing is copied if one exists."
+        ),
+        epilog=_EPILOG,
+        formatter_class=formatter,
+    )
+    init.add_argument("kind", metavar="KIND", help=f"one of {', '.join(KINDS)}")
+    init.add_argument("name", metavar="NAME", help="a shipped name (vtm-pin list)")
+    init.add_argument(
+        "--to",
+        type=_folder,
+        default=Path(),
+        metavar="DIR",
+        help="folder to copy into (default: this folder; made if missing)",
+    )
+    init.set_defaults(func=_init)
+
+
+def _init(args: argparse.Namespace) -> int:
+    written = init_files(args.kind, args.name, args.to)
+    print(f"wrote {', '.join(str(path) for path in written)}")
+    return EXIT_OK
 
 
 def _output_options(parser: argparse.ArgumentParser) -> None:
@@ -695,9 +732,15 @@ def _progress(scenario: Scenario, show: bool) -> Iterator[Progress]:
 
 def _list(args: argparse.Namespace) -> int:
     if args.what == "scenarios":
-        rows = _scenario_rows(args.dir or SCENARIOS_DIR)
+        folder = args.dir or SCENARIOS_DIR
+        rows = _scenario_rows(folder)
         header: list[object] = ["scenario", "robot", "duration [s]", "description"]
+    elif args.what == "studies":
+        folder = STUDIES_DIR
+        rows = _study_rows()
+        header = ["study", "scenario", "description"]
     else:
+        folder = ROBOTS_DIR
         rows = _robot_rows(args.check, not args.json)
         header = ["robot", "joints", "tool frame", "source"]
     if args.json:
@@ -707,7 +750,12 @@ def _list(args: argparse.Namespace) -> int:
     for row in [header, *rows]:
         cells = [str(x).ljust(w) for x, w in zip(row[:-1], widths[:-1], strict=True)]
         print("  ".join([*cells, str(row[-1])]))
+    if args.dir is None:  # where the shipped files live
+        kind = {"scenarios": "scenario", "studies": "study", "robots": "robot"}[args.what]
+        print(f"\nin {folder} ('vtm-pin init {kind} NAME' copies one here)")
     if args.what == "robots" and not args.check:
+        data = [n for n in shipped_names("robot") if (ROBOTS_DIR / f"{n}.yaml").is_file()]
+        print(f"robot data files (drives, brakes, rated payload) there: {', '.join(data)}")
         names = ", ".join(list_example_robots())
         print(
             "\n"
@@ -728,11 +776,23 @@ def _scenario_rows(folder: Path) -> list[list[object]]:
     return rows
 
 
+def _study_rows() -> list[list[object]]:
+    rows: list[list[object]] = []
+    for name in shipped_names("study"):
+        try:
+            raw = read_yaml(STUDIES_DIR / f"{name}.yaml", StudyError)
+            scenario, text = raw["scenario"], " ".join(str(raw.get("description", "")).split())
+        except (VtmError, TypeError, KeyError) as exc:
+            scenario, text = "-", f"INVALID: {exc}"
+        rows.append([name, scenario, text])
+    return rows
+
+
 def _robot_rows(check: bool, show: bool) -> list[list[object]]:
     rows: list[list[object]] = []
     for name in list_local_robots():
         robot = load_robot(name)
-        rows.append([name, robot.nv, robot.tool_frame, f"robots/{name}.urdf"])
+        rows.append([name, robot.nv, robot.tool_frame, str(ROBOTS_DIR / f"{name}.urdf")])
     if check:
         names = list_example_robots()
         shown = show and sys.stderr.isatty()

@@ -1,14 +1,16 @@
-"""Robot models: load a URDF into Pinocchio and attach drive (gear, rotor) data."""
+"""Robot models: load a URDF (or a ROS xacro description) into Pinocchio, attach drive data."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import os
 import re
 import stat
 import sys
 import tempfile
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib import resources
@@ -282,16 +284,20 @@ def load_robot(
     spec: str | Path,
     drives: Mapping[str, Drive] | None = None,
     base_dir: Path | None = None,
+    packages: Mapping[str, str] | None = None,
 ) -> Robot:
-    """Load a robot by URDF path, by name of a file in ``robots/``, or by example-robot-data name.
+    """Load a robot by URDF or xacro path, by a ``robots/`` name, or by example-robot-data name.
 
     Args:
-        spec: A path to a ``.urdf`` file, the stem of a file in ``robots/`` (``planar_3r``)
-            or an example-robot-data name (``ur5``, ``panda``).
+        spec: A path to a ``.urdf`` or ``.xacro`` file, the stem of a file in ``robots/``
+            (``planar_3r``) or an example-robot-data name (``ur5``, ``panda``).
         drives: Gear ratio and rotor inertia per joint name. Pinocchio's ``crba`` and ``aba``
             ignore ``model.rotorInertia``, so the reflected inertia ratio^2 x J_rotor is
             written into ``model.armature``.
         base_dir: Folder that relative URDF paths are resolved against (the scenario's).
+        packages: ROS package name -> folder, for a xacro file's ``$(find pkg)`` and
+            ``package://`` (relative folders resolved against ``base_dir``); packages that
+            hold the xacro file (a ``package.xml`` above it) are found without it.
 
     Returns:
         The loaded robot.
@@ -305,7 +311,7 @@ def load_robot(
         JointNotFound: ``drives`` names a joint the model does not have.
     """
     text = str(spec)
-    model, source = _load_model(text, base_dir)
+    model, source = _load_model(text, base_dir, packages or {})
     joints = _check_joints(model)
     if not joints:
         raise RobotLoadError(
@@ -359,20 +365,26 @@ class RobotCache:
         spec: str | Path,
         drives: Mapping[str, Drive] | None = None,
         base_dir: Path | None = None,
+        packages: Mapping[str, str] | None = None,
     ) -> Robot:
         """The robot :func:`load_robot` returns for these arguments, loaded once."""
-        key = (str(spec), tuple(sorted((drives or {}).items())), str(base_dir))
-        return self._robots.get(key, lambda: load_robot(spec, drives=drives, base_dir=base_dir))
+        found = tuple(sorted((packages or {}).items()))
+        key = (str(spec), tuple(sorted((drives or {}).items())), str(base_dir), found)
+        return self._robots.get(
+            key, lambda: load_robot(spec, drives=drives, base_dir=base_dir, packages=packages)
+        )
 
 
-def _load_model(text: str, base_dir: Path | None) -> tuple[pin.Model, str]:
+def _load_model(
+    text: str, base_dir: Path | None, packages: Mapping[str, str]
+) -> tuple[pin.Model, str]:
     """The Pinocchio model ``text`` names, and the file it was built from."""
     try:
         path = Path(text)
         if not path.is_absolute() and base_dir is not None and (base_dir / path).exists():
             path = base_dir / path
-        is_path = text != "" and (path.suffix.lower() == ".urdf" or path.exists())
-        problem = "no such file" if not path.exists() else "not a URDF file"
+        is_path = text != "" and (path.suffix.lower() in (".urdf", ".xacro") or path.exists())
+        problem = "no such file" if not path.exists() else "not a URDF or xacro file"
         is_file = path.is_file()
         local = ROBOTS_DIR / f"{text}.urdf"
         is_local = not is_path and "/" not in text and text != "" and local.is_file()
@@ -381,6 +393,9 @@ def _load_model(text: str, base_dir: Path | None) -> tuple[pin.Model, str]:
     if is_path:
         if not is_file:
             raise RobotLoadError(text, problem)
+        if path.suffix.lower() == ".xacro":
+            folders = {name: str(base_dir / d if base_dir else d) for name, d in packages.items()}
+            return _build_from_xacro(path, folders), str(path)
         return _build_from_urdf(path), str(path)
     if is_local:
         return _build_from_urdf(local), str(local)
@@ -411,21 +426,31 @@ def robot_data_file(spec: str, urdf: str | Path | None = None) -> Path | None:
     """The robot data file of the robot ``spec`` names; None if it has none.
 
     ``<name>.yaml`` beside the robot's URDF (``urdf`` when it is known, else ``spec`` if it is
-    a URDF path), or, for a name, ``robots/<name>.yaml`` (an example-robot-data robot's data
+    a URDF path; beside ``<name>.xacro`` or ``<name>.urdf.xacro`` too), or, for a name,
+    ``robots/<name>.yaml`` (an example-robot-data robot's data
     is kept there too). Only the file's place: whether it is robot data (no ``robot`` key) is
     decided when it is read.
     """
     try:
         candidates = []
-        if urdf is not None and str(urdf).lower().endswith(".urdf"):
-            candidates.append(Path(urdf).with_suffix(".yaml"))
-        elif Path(spec).suffix.lower() == ".urdf":
-            candidates.append(Path(spec).with_suffix(".yaml"))
+        if urdf is not None and str(urdf).lower().endswith((".urdf", ".xacro")):
+            candidates.append(_data_beside(Path(urdf)))
+        elif Path(spec).suffix.lower() in (".urdf", ".xacro"):
+            candidates.append(_data_beside(Path(spec)))
         if spec and "/" not in spec and Path(spec).suffix == "":
             candidates.append(ROBOTS_DIR / f"{spec}.yaml")
         return next((c for c in candidates if c.is_file()), None)
     except (OSError, ValueError):  # a name too long for a path, or with a NUL in it
         return None
+
+
+def _data_beside(path: Path) -> Path:
+    """``<name>.yaml`` beside ``<name>.urdf``, ``<name>.xacro`` or ``<name>.urdf.xacro``."""
+    name = path.name
+    for suffix in (".xacro", ".urdf"):
+        if name.lower().endswith(suffix):
+            name = name[: -len(suffix)]
+    return path.with_name(f"{name}.yaml")
 
 
 def robot_data(spec: str, base_dir: Path | None = None) -> Mapping[str, Any]:
@@ -520,6 +545,53 @@ def _default_tool_frame(model: pin.Model) -> str:
 
 def _build_from_urdf(path: Path) -> pin.Model:
     """Parse a URDF; an error urdfdom reports (even one it then skips) refuses the file."""
+    _check_file(path)
+    return _build(lambda: pin.buildModelFromUrdf(str(path)), str(path))
+
+
+#: What ``pip`` installs to read xacro files.
+XACRO_EXTRA = "pip install 'vtm_pin[xacro]'"
+
+
+def _build_from_xacro(path: Path, packages: Mapping[str, str]) -> pin.Model:
+    """Expand a xacro file (xacrodoc, no ROS needed) and parse the URDF it gives.
+
+    ``$(find pkg)`` and ``package://`` resolve to ``packages``, or to a package holding the
+    file (a folder above it with a ``package.xml``). Mesh files are not read.
+    """
+    _check_file(path)
+    try:
+        from xacrodoc import XacroDoc
+        from xacrodoc import packages as finder
+    except ImportError as exc:
+        raise RobotLoadError(
+            str(path), f"a xacro robot needs the xacro extra: {XACRO_EXTRA}"
+        ) from exc
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            finder.reset()  # the package folders of another scenario are forgotten
+            finder.update_package_cache(dict(packages))
+            xml = XacroDoc.from_file(str(path), resolve_packages=False).to_urdf_string()
+    except Exception as exc:  # xacro raises exceptions of many kinds
+        raise RobotLoadError(str(path), _xacro_problem(exc)) from exc
+    return _build(lambda: pin.buildModelFromXML(xml), str(path))
+
+
+def _xacro_problem(exc: Exception) -> str:
+    """What xacro's exception says, in one line; a missing package says how to give it."""
+    cause = getattr(exc, "exc", None) or exc  # xacro wraps the error it met
+    if type(cause).__name__ == "PackageNotFoundError":
+        return (
+            f"xacro: ROS package '{excerpt(' '.join(map(str, cause.args)))}' not found: give "
+            "its folder in the scenario's robot_packages (or keep the file inside the package, "
+            "below its package.xml)"
+        )
+    message = re.sub(r"^<class '[\w.]+'>: ", "", " ".join(str(cause).split()))
+    return excerpt(f"xacro: {message or type(cause).__name__}", 200)
+
+
+def _check_file(path: Path) -> None:
+    """Refuse what is not a regular UTF-8 text file of at most :data:`MAX_URDF_BYTES`."""
     try:
         if not stat.S_ISREG(path.stat().st_mode):  # a named pipe would hang the readers
             raise RobotLoadError(str(path), "is not a regular file (a folder, pipe or device)")
@@ -534,17 +606,21 @@ def _build_from_urdf(path: Path) -> pin.Model:
         ) from exc
     except OSError as exc:
         raise RobotLoadError(str(path), f"cannot read the file ({exc.strerror})") from exc
+
+
+def _build(build: Callable[[], pin.Model], source: str) -> pin.Model:
+    """The model ``build`` makes; an error its URDF parser reports refuses it."""
     with _parser_messages() as messages:
         try:
-            model = pin.buildModelFromUrdf(str(path))
+            model = build()
         except (RuntimeError, ValueError) as exc:
             error: Exception | None = exc
         else:
             error = None
     if error is not None:
         reason = messages[0] if messages else " ".join(str(error).split())
-        raise RobotLoadError(str(path), excerpt(reason, 200)) from error
-    _refuse_parser_errors(messages, str(path))
+        raise RobotLoadError(source, excerpt(reason, 200)) from error
+    _refuse_parser_errors(messages, source)
     return model
 
 

@@ -191,8 +191,15 @@ SCHEMA: dict[str, Any] = {
         "description": {"type": "string", "description": "Free text shown in the summary."},
         "robot": {
             "type": "string",
-            "description": "Name of a file in robots/, a URDF path (relative to the scenario "
-            "file) or an example-robot-data name.",
+            "description": "Name of a file in robots/, a URDF or xacro path (relative to the "
+            "scenario file) or an example-robot-data name.",
+        },
+        "robot_packages": {
+            "type": "object",
+            "additionalProperties": {"type": "string", "minLength": 1},
+            "description": "ROS package name -> its folder (relative to the scenario file), for "
+            "a xacro robot's $(find pkg) and package:// paths; a package holding the xacro "
+            "file is found without it. Default: none.",
         },
         "drives": DRIVES_SCHEMA,
         "initial": {
@@ -689,7 +696,8 @@ def build_scenario(
 
     drives = _drives(raw.get("drives", {}), source)
     try:
-        robot = loader(raw["robot"], drives=drives, base_dir=base_dir)
+        packages = raw.get("robot_packages", {})
+        robot = loader(raw["robot"], drives=drives, base_dir=base_dir, packages=packages)
     except JointNotFound as exc:
         raise ScenarioError(
             source,
