@@ -26,7 +26,7 @@ class TransitionResult:
 
     Attributes:
         v_plus: Generalized velocity after the event [rad/s or m/s], shape (n,).
-        Lambda: Impulsive constraint forces of J+ = [J1; J2] [N m s or N s], shape (m1 + m2,),
+        Lambda: Impulsive constraint forces of J+ = ``[J1; J2]`` [N m s or N s], shape (m1 + m2,),
             with the paper's sign (M dv + J+^T Lambda = 0).
         m1: Number of persistent constraints (the first m1 entries of ``Lambda``).
         energy_loss: Kinetic energy before minus after, T(v-) - T(v+) [J].
