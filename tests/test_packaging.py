@@ -89,15 +89,19 @@ def run_checked(command: list[str], cwd: Path) -> subprocess.CompletedProcess[st
 
 
 def check_installed_wheel(python: Path, elsewhere: Path) -> None:
-    """vtm_pin, its robots and scenarios come from the wheel; run, list and init work."""
+    """vtm_pin, its robots, scenarios and schemas come from the wheel; run, list and init work."""
     code = (
-        "import vtm_pin, vtm_pin.robot as r, vtm_pin.scenario as s; "
-        "print(vtm_pin.__file__); print(r.ROBOTS_DIR); print(s.SCENARIOS_DIR)"
+        "import vtm_pin, vtm_pin.robot as r, vtm_pin.scenario as s, vtm_pin.schemas as j; "
+        "print(vtm_pin.__file__); print(r.ROBOTS_DIR); print(s.SCENARIOS_DIR); "
+        "print(j.schema_file('scenario')); print(j.schema_file('study'))"
     )
     paths = run_checked([str(python), "-c", code], cwd=elsewhere).stdout.split()
     env_root = python.parent.parent.resolve()
+    assert len(paths) == 5
     for path in paths:
         assert Path(path).resolve().is_relative_to(env_root), f"{path} is not from the wheel"
+    for path in paths[3:]:  # the JSON Schemas are package data of the wheel
+        assert Path(path).is_file(), f"{path} is not in the wheel"
     vtm_pin = python.parent / "vtm-pin"
     listed = run_checked([str(vtm_pin), "list", "scenarios", "--json"], cwd=elsewhere).stdout
     names = [entry["scenario"] for entry in json.loads(listed)]

@@ -35,13 +35,10 @@ import yaml
 
 from .exceptions import InputError, excerpt
 
-#: Bounds of the values input files give: generous but finite, so that every number a file
-#: gives is one a robot can have; a value outside them is a typo (or 1e308), refused with its key.
-MAX_TIME = 3600.0  # [s] durations, event times, delays and ramps
-MAX_RATE = 1.0e3  # [rad/s or m/s] joint rates
-MAX_TORQUE = 1.0e6  # [N m] drive torque limits and brake torques
-MAX_VISCOUS_VELOCITY = 1.0e5  # [rad/s] motor side: above it a viscous brake is Coulomb's
-MAX_MASS = 1.0e5  # [kg] payloads
+#: Largest payload mass [kg] of a robot data file's rated_payload. The bounds of the values
+#: scenario and study files give are in their JSON Schemas (:mod:`vtm_pin.schemas`): generous
+#: but finite, so that a value outside them is a typo (or 1e308), refused with its key.
+MAX_MASS = 1.0e5
 
 #: Largest input file read [bytes]; scenario and robot data files are a few kB.
 MAX_FILE_BYTES = 1_000_000

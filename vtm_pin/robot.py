@@ -30,105 +30,23 @@ from .exceptions import (
 )
 from .inputs import (
     MAX_MASS,
-    MAX_RATE,
-    MAX_TIME,
-    MAX_TORQUE,
-    MAX_VISCOUS_VELOCITY,
     check_schema,
     number,
     read_yaml,
 )
 from .model_cache import ModelCache
+from .schemas import definition
 
 #: Folder of the URDF models shipped with the project: ``robots/`` at the top of the source
 #: tree, installed as the package data ``vtm_pin.robots`` (so an installed wheel has it too).
 ROBOTS_DIR = Path(str(resources.files("vtm_pin.robots")))
 
-#: Largest gear ratio [-] and rotor inertia (motor side) [kg m^2] accepted for a drive.
-MAX_GEAR_RATIO, MAX_ROTOR_INERTIA = 1.0e4, 100.0
-#: Largest short-circuit braking torque [N m] and speed of its peak [rad/s], motor side.
-MAX_SHORT_CIRCUIT_TORQUE, MAX_SHORT_CIRCUIT_SPEED = 1.0e6, 1.0e5
-#: Drive data per joint name, as a scenario's ``drives`` and a robot data file give them.
-DRIVES_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "description": "Gear ratio [-], rotor inertia [kg m^2] and short-circuit braking per joint "
-    "name; armature = gear_ratio^2 * rotor_inertia. Default: none.",
-    "additionalProperties": {
-        "type": "object",
-        "additionalProperties": False,
-        "properties": {
-            "short_circuit_torque": number(
-                0.0,
-                MAX_SHORT_CIRCUIT_TORQUE,
-                "Peak torque of the motor's short-circuit (dynamic) braking once its drive drops "
-                "out, motor side [N m], at most 1e6. Default: 0 (none).",
-            ),
-            "short_circuit_speed": number(
-                0.0,
-                MAX_SHORT_CIRCUIT_SPEED,
-                "Motor speed at which the short-circuit braking torque peaks [rad/s], > 0, at "
-                "most 1e5; required with short_circuit_torque.",
-                exclusive_low=True,
-            ),
-            "gear_ratio": number(
-                0.0,
-                MAX_GEAR_RATIO,
-                "Motor angle per joint angle [-], at most 1e4. Default: 1.",
-                exclusive_low=True,
-            ),
-            "rotor_inertia": number(
-                0.0,
-                MAX_ROTOR_INERTIA,
-                "Rotor inertia, motor side [kg m²], at most 100. Default: 0.",
-            ),
-        },
-    },
-}
+#: Drive data per joint name, as a scenario's ``drives`` and a robot data file give them: the
+#: scenario schema's ``$defs/drives`` (``vtm_pin/schemas/scenario.schema.json``).
+DRIVES_SCHEMA: dict[str, Any] = definition("scenario", "drives")
 #: One joint's brake, as a scenario's ``brakes.<joint>`` and a robot data file give it (motor
-#: side torques and speeds, times in s).
-BRAKE_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "additionalProperties": False,
-    "properties": {
-        "ideal": {
-            "type": "boolean",
-            "description": "Infinite torque: lock at engagement. Default: false.",
-        },
-        "delay": number(0.0, MAX_TIME, "Engagement delay [s], >= 0."),
-        "ramp": number(0.0, MAX_TIME, "Normal-force rise time [s]."),
-        "sliding_torque": number(
-            0.0,
-            MAX_TORQUE,
-            "Kinetic torque, motor side [N m], > 0 and at most 1e6.",
-            exclusive_low=True,
-        ),
-        "static_torque": number(
-            0.0,
-            MAX_TORQUE,
-            "Holding torque, motor side [N m] >= sliding, at most 1e6.",
-            exclusive_low=True,
-        ),
-        "friction": {
-            "enum": ["coulomb", "stribeck", "viscous"],
-            "description": "Friction law: coulomb (constant sliding torque), stribeck (falls "
-            "from the static to the sliding torque over stribeck_velocity) or viscous (grows "
-            "with the slip speed: sliding_torque (1 + w / viscous_velocity)). Default: coulomb.",
-        },
-        "stribeck_velocity": number(
-            0.0,
-            MAX_RATE,
-            "Stribeck law: motor speed of the drop [rad/s], > 0, at most 1e3.",
-            exclusive_low=True,
-        ),
-        "viscous_velocity": number(
-            0.0,
-            MAX_VISCOUS_VELOCITY,
-            "Viscous law: motor speed at which the kinetic torque is twice sliding_torque "
-            "[rad/s], > 0, at most 1e5.",
-            exclusive_low=True,
-        ),
-    },
-}
+#: side torques and speeds, times in s): the scenario schema's ``$defs/brake``, a mapping.
+BRAKE_SCHEMA: dict[str, Any] = {"type": "object", **definition("scenario", "brake")}
 #: Schema of a robot data file: ``<name>.yaml`` beside ``<name>.urdf``, or in ``robots/`` for
 #: an example-robot-data name.
 ROBOT_DATA_SCHEMA: dict[str, Any] = {

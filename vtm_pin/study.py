@@ -44,65 +44,15 @@ import numpy as np
 
 from .exceptions import InputError, StudyError, VtmError, excerpt
 from .inputs import check_schema, find_shipped, read_yaml
+from .schemas import load_schema
 
 #: Folder of the studies shipped with the project: ``studies/`` at the top of the source tree,
 #: installed as the package data ``vtm_pin.studies``.
 STUDIES_DIR = Path(str(resources.files("vtm_pin.studies")))
-#: Most cases one study may have.
-MAX_CASES = 1_000_000
-#: Axis values: a finite number, a string (a joint name), or null (``failed_brake: none``).
-_VALUE = {
-    "oneOf": [
-        {"type": "number", "minimum": -1.0e9, "maximum": 1.0e9},
-        {"type": "string"},
-        {"type": "null"},
-    ]
-}
-_RANGE = {
-    "type": "object",
-    "additionalProperties": False,
-    "required": ["min", "max"],
-    "properties": {
-        "min": {"type": "number", "minimum": -1.0e9, "maximum": 1.0e9},
-        "max": {"type": "number", "minimum": -1.0e9, "maximum": 1.0e9},
-    },
-    "description": "A range drawn quasi-randomly in sampled studies.",
-}
-#: JSON schema of a study file.
-STUDY_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "additionalProperties": False,
-    "required": ["scenario", "vary"],
-    "properties": {
-        "description": {"type": "string", "description": "Free text shown in the report."},
-        "scenario": {
-            "type": "string",
-            "description": "Base scenario: a path relative to the study file, or the name of "
-            "a shipped scenario.",
-        },
-        "vary": {
-            "type": "object",
-            "minProperties": 1,
-            "description": "Axis name or scenario key path -> list of values, or {min, max} "
-            "(sampled studies only).",
-            "additionalProperties": {
-                "oneOf": [{"type": "array", "items": _VALUE, "minItems": 1}, _RANGE]
-            },
-        },
-        "samples": {
-            "type": "integer",
-            "minimum": 1,
-            "maximum": MAX_CASES,
-            "description": "Number of cases drawn. Default: the full grid of the lists.",
-        },
-        "seed": {
-            "type": "integer",
-            "minimum": 0,
-            "maximum": 2**32 - 1,
-            "description": "Seed of the sampled draws. Default: 0.",
-        },
-    },
-}
+#: JSON schema of a study file: ``vtm_pin/schemas/study.schema.json``.
+STUDY_SCHEMA: dict[str, Any] = load_schema("study")
+#: Most cases one study may have (the schema's largest ``samples``).
+MAX_CASES: int = STUDY_SCHEMA["properties"]["samples"]["maximum"]
 
 
 def _set_annex_b(key: str) -> Callable[[dict[str, Any], Any], None]:
