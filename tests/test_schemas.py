@@ -30,6 +30,7 @@ import jsonschema
 import pytest
 import yaml
 from conftest import ROOT, SCENARIOS
+from test_bad_input import replaced
 
 from vtm_pin.exceptions import InputError, ScenarioError, StudyError
 from vtm_pin.inputs import check_schema, read_yaml
@@ -173,14 +174,6 @@ def leaves(doc: Any, path: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
     if isinstance(doc, list):
         children = enumerate(doc)
     return [path] + [p for k, v in children for p in leaves(v, (*path, k))]
-
-
-def replaced(doc: Any, path: tuple[Any, ...], value: Any) -> Any:
-    if not path:
-        return value
-    if isinstance(doc, dict):
-        return {k: replaced(v, path[1:], value) if k == path[0] else v for k, v in doc.items()}
-    return [replaced(v, path[1:], value) if i == path[0] else v for i, v in enumerate(doc)]
 
 
 def test_standard_validator_agrees_on_every_one_value_change_of_the_shipped_studies():
