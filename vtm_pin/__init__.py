@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from .analysis import EnergyMomentum, compute_energy_momentum
+    from .brakes import BrakeEvent
     from .dynamics import (
         compute_bias,
         compute_energy,
@@ -39,7 +40,7 @@ if TYPE_CHECKING:
     from .holonomic import FrameConstraint
     from .integrators import RK4
     from .problem import LockEvent, Problem
-    from .results import BrakeEvent, EventRecord, SimulationResult
+    from .results import EventRecord, SimulationResult
     from .robot import Drive, Robot, load_robot
     from .scenario import Scenario, build_scenario, load_scenario, run_scenario
     from .simulation import simulate
@@ -78,7 +79,8 @@ _SOURCES = {
     "integrators": ["RK4"],
     "robot": ["Drive", "Robot", "load_robot"],
     "scenario": ["Scenario", "build_scenario", "load_scenario", "run_scenario"],
-    "results": ["BrakeEvent", "EventRecord", "SimulationResult"],
+    "results": ["EventRecord", "SimulationResult"],
+    "brakes": ["BrakeEvent"],
     "problem": ["LockEvent", "Problem"],
     "simulation": ["simulate"],
     "topology": ["Topology"],

@@ -25,7 +25,46 @@ import numpy as np
 from .exceptions import BrakeError
 from .friction import FrictionLaw, IdealLock
 from .integrators.base import StateEvent
-from .results import BrakeEvent, BrakeEventKind
+
+
+class BrakeEventKind(str, Enum):
+    """A change of one brake's state (the value is the word used in summary.json)."""
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
+
+    ENGAGE = "engage"
+    LOCK = "lock"  # an ideal brake locks
+    STICK = "stick"
+    START = "start"  # engaged at rest and cannot hold: starts sliding
+    REVERSE = "reverse"  # slides the other way (reached rest and cannot hold, or a jump)
+    SLIP = "slip"  # a stuck joint breaks loose
+
+
+@dataclass(frozen=True)
+class BrakeEvent:
+    """A change of one brake's state.
+
+    Attributes:
+        t: Time [s].
+        joint: Joint name.
+        kind: ``"engage"``, ``"stick"``, ``"reverse"`` (reached v = 0 but could not hold),
+            ``"slip"`` (stuck joint broke loose) or ``"lock"`` (ideal brake).
+        v: The joint's rate at the event as integrated, before it is set to 0 [rad/s].
+        holding_torque: Torque needed to hold the joint at the event [N m] (NaN if unused).
+        static_torque: Static limit at the event, joint side [N m] (NaN if unused).
+    """
+
+    t: float
+    joint: str
+    kind: BrakeEventKind
+    v: float
+    holding_torque: float = float("nan")
+    static_torque: float = float("nan")
+
 
 #: Rate below which a braked joint counts as at rest [rad/s, m/s for prismatic joints]: well
 #: above the integrator's round-off and event-location residuals (<= 1e-12 rad/s measured),

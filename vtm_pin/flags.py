@@ -37,10 +37,10 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .brakes import Brake
+from .brakes import Brake, BrakeEventKind
 from .kinematics import compute_tool_jacobian
 from .payload import Payload
-from .results import BrakeEventKind, SimulationResult
+from .results import SimulationResult
 from .robot import Robot
 from .stopping import StoppingReport
 

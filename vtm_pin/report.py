@@ -11,9 +11,10 @@ from typing import Any
 import numpy as np
 
 from .analysis import EnergyMomentum
+from .brakes import BrakeEvent
 from .figures import DEFINITIONS, METRICS, StopFigures, describe_flags
 from .integrators import Integrator
-from .results import BrakeEvent, SimulationResult
+from .results import SimulationResult
 from .scenario import Scenario
 from .stopping import StoppingReport
 

@@ -12,6 +12,7 @@ from enum import Enum
 
 import numpy as np
 
+from .brakes import BrakeEvent
 from .exceptions import SimulationError
 from .stop import Stop
 from .transitions import TransitionResult
@@ -33,17 +34,6 @@ class LockKind(_Word):
     LOCK = "lock"  # a prescribed lock, or an ideal brake
     STICK = "stick"  # a sliding brake came to rest and holds
     ACTIVATE = "activate"  # frame constraints activate (maybe with locks)
-
-
-class BrakeEventKind(_Word):
-    """A change of one brake's state (the value is the word used in summary.json)."""
-
-    ENGAGE = "engage"
-    LOCK = "lock"  # an ideal brake locks
-    STICK = "stick"
-    START = "start"  # engaged at rest and cannot hold: starts sliding
-    REVERSE = "reverse"  # slides the other way (reached rest and cannot hold, or a jump)
-    SLIP = "slip"  # a stuck joint breaks loose
 
 
 class RowKind(_Word):
@@ -106,28 +96,6 @@ class EventRecord:
     def v_plus(self) -> np.ndarray:
         """Velocity just after [rad/s]."""
         return self.transition.v_plus
-
-
-@dataclass(frozen=True)
-class BrakeEvent:
-    """A change of one brake's state.
-
-    Attributes:
-        t: Time [s].
-        joint: Joint name.
-        kind: ``"engage"``, ``"stick"``, ``"reverse"`` (reached v = 0 but could not hold),
-            ``"slip"`` (stuck joint broke loose) or ``"lock"`` (ideal brake).
-        v: The joint's rate at the event as integrated, before it is set to 0 [rad/s].
-        holding_torque: Torque needed to hold the joint at the event [N m] (NaN if unused).
-        static_torque: Static limit at the event, joint side [N m] (NaN if unused).
-    """
-
-    t: float
-    joint: str
-    kind: BrakeEventKind
-    v: float
-    holding_torque: float = float("nan")
-    static_torque: float = float("nan")
 
 
 @dataclass(frozen=True)

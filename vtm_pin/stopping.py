@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .brakes import Brake, BrakeMode
+from .brakes import Brake, BrakeEventKind, BrakeMode
 from .kinematics import compute_tool_jacobian, compute_tool_motion
-from .results import BrakeEventKind, RowKind, SimulationResult
+from .results import RowKind, SimulationResult
 from .robot import Robot
 from .stop import DEFAULT_REST_SPEED
 
