@@ -5,7 +5,7 @@ the batched and the scalar engine, and prints per engine the median wall time of
 command (process start, cases, table, graphs and report), the cases per second, and the
 batched engine's speed-up. From the study's ``summary.json`` it splits the time: the
 per-case model build (scenario, payload, Annex-B pose) and report (stopping figures), and the
-batched engine's own split, summed over the workers (:data:`vtm_pin.batch.PARTS`: Pinocchio
+batched engine's own split, summed over the workers (:data:`vtm_pin.core.batch.PARTS`: Pinocchio
 calls with the solves of locked runs, the runs' hybrid loops, event location, vectorised
 stepping). It also prints the wall time per right-hand-side evaluation of the whole command,
 against the 0.86 us per state that ``pinocchio.abaInParallel`` reaches on 2 threads here.
@@ -29,8 +29,8 @@ from pathlib import Path
 
 import yaml
 
-from vtm_pin.batch import PARTS
-from vtm_pin.study import find_study
+from vtm_pin.core.batch import PARTS
+from vtm_pin.study.cases import find_study
 
 #: Wall time per state of pinocchio.abaInParallel on a UR10 batch, 2 threads (issue 14) [s].
 LIMIT = 0.86e-6

@@ -22,17 +22,17 @@ import numpy as np
 import pinocchio as pin
 from matplotlib.figure import Figure
 
-from vtm_pin.chain import build_chain
-from vtm_pin.constraints import lock_jacobian
-from vtm_pin.dynamics import compute_forward_dynamics, compute_M
-from vtm_pin.holonomic import FrameConstraint, compute_kinematics, stack
-from vtm_pin.integrators import DOP853, RK4, Integrator, SemiImplicitEuler
-from vtm_pin.results import SimulationResult
-from vtm_pin.scenario import Scenario, run_scenario
-from vtm_pin.topology import Topology
-from vtm_pin.transitions import TRANSITIONS
-from vtm_pin.transitions.projected import compute_null_space_projector
-from vtm_pin.transitions.recursive import compute_joint_lock_transition, weightless
+from vtm_pin.core.holonomic import FrameConstraint, compute_kinematics, stack
+from vtm_pin.core.results import SimulationResult
+from vtm_pin.core.topology import Topology
+from vtm_pin.numerics.constraints import lock_jacobian
+from vtm_pin.numerics.dynamics import compute_forward_dynamics, compute_M
+from vtm_pin.numerics.integrators import DOP853, RK4, Integrator, SemiImplicitEuler
+from vtm_pin.numerics.transitions import TRANSITIONS
+from vtm_pin.numerics.transitions.projected import compute_null_space_projector
+from vtm_pin.numerics.transitions.recursive import compute_joint_lock_transition, weightless
+from vtm_pin.physics.chain import build_chain
+from vtm_pin.scene.scenario import Scenario, run_scenario
 
 #: Step sizes [s] (rk4, euler) and relative tolerances [-] (dop853) of a full sweep.
 LADDERS: dict[str, list[float]] = {

@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 import vtm_pin as vp
-from vtm_pin.brakes import Brake
-from vtm_pin.friction import Coulomb
-from vtm_pin.stop import Stop
+from vtm_pin.physics.brakes import Brake
+from vtm_pin.physics.friction import Coulomb
+from vtm_pin.physics.stop import Stop
 
 CASES = {
     # name: (robot, joint, q0 [rad], v0 [rad/s] held until the signal, t_signal, t_compare [s])

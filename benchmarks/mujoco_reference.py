@@ -23,8 +23,8 @@ import mujoco.rollout
 import numpy as np
 
 import vtm_pin as vp
-from vtm_pin.constraints import lock_jacobian
-from vtm_pin.transitions import kkt
+from vtm_pin.numerics.constraints import lock_jacobian
+from vtm_pin.numerics.transitions import kkt
 
 
 @dataclass

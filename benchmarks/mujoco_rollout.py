@@ -18,8 +18,8 @@ the wrist locks of the 6R example at t = 0 are the same in every case and are co
 Rollouts run on persistent ``mujoco.rollout.Rollout`` objects: ``nthread=0`` (in the calling
 thread, "1 thread") and ``nthread=2``.
 
-vtm_pin side: ``vtm_pin.batch.simulate_many`` (engine "batched" and "scalar") with DOP853 at
-rtol 1e-3..1e-12 (atol = rtol / 100); a stand-in looping ``vtm_pin.simulation.simulate`` if
+vtm_pin side: ``vtm_pin.core.batch.simulate_many`` (engine "batched" and "scalar") with DOP853 at
+rtol 1e-3..1e-12 (atol = rtol / 100); a stand-in looping ``vtm_pin.core.simulation.simulate`` if
 that module is missing.
 
 Error: max over cases of max |q(T) - q_ref(T)| [rad], q_ref from DOP853 at rtol 1e-13. For
@@ -55,19 +55,19 @@ from benchlib import REFERENCE_RTOL, make_integrator
 from matplotlib.figure import Figure
 
 import vtm_pin as vp
-from vtm_pin.constraints import lock_jacobian
-from vtm_pin.integrators import Integrator
-from vtm_pin.problem import Problem
-from vtm_pin.results import SimulationResult
-from vtm_pin.simulation import simulate
-from vtm_pin.transitions import kkt
+from vtm_pin.core.problem import Problem
+from vtm_pin.core.results import SimulationResult
+from vtm_pin.core.simulation import simulate
+from vtm_pin.numerics.constraints import lock_jacobian
+from vtm_pin.numerics.integrators import Integrator
+from vtm_pin.numerics.transitions import kkt
 
 try:
-    from vtm_pin.batch import simulate_many
+    from vtm_pin.core.batch import simulate_many
 
-    BATCH_ENGINE = "vtm_pin.batch.simulate_many"
+    BATCH_ENGINE = "vtm_pin.core.batch.simulate_many"
 except ImportError:
-    BATCH_ENGINE = "stand-in: loop of vtm_pin.simulation.simulate (vtm_pin.batch missing)"
+    BATCH_ENGINE = "stand-in: loop of vtm_pin.core.simulation.simulate (vtm_pin.core.batch missing)"
 
     def simulate_many(
         problems: Sequence[Problem],
@@ -76,7 +76,7 @@ except ImportError:
         transition: str = "kkt",
         engine: str = "batched",
     ) -> list[SimulationResult]:
-        """Stand-in for ``vtm_pin.batch.simulate_many``: one scalar simulation per problem."""
+        """Stand-in for ``vtm_pin.core.batch.simulate_many``: one scalar simulation per problem."""
         del engine  # both engines are the scalar loop here
         return [simulate(p, integrator, transition=transition) for p in problems]
 
@@ -299,7 +299,8 @@ class MujocoBatch:
     def _jump(self, q: np.ndarray, v: np.ndarray, phase: _Phase) -> np.ndarray:
         """Momentum-consistent velocities [rad/s] after the phase's locks, every case at once.
 
-        The KKT system of :mod:`vtm_pin.transitions.kkt` with MuJoCo's mass matrix, batched.
+        The KKT system of :mod:`vtm_pin.numerics.transitions.kkt` with MuJoCo's mass matrix,
+        batched.
         """
         n, N = len(self.joints), len(q)
         rows = [*phase.locked, *phase.lock]

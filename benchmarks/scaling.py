@@ -1,6 +1,6 @@
 """Cost of one lock transition per formulation, and of one right-hand side, for n up to 200.
 
-For an n-link chain (``vtm_pin.chain.build_chain``) at a random state, every other joint is
+For an n-link chain (``vtm_pin.physics.chain.build_chain``) at a random state, every other joint is
 already locked (m1 = n // 2, the persistent constraints J1) and one more joint locks (m2 = 1).
 Timed (median of repeats): ``kkt``, ``projected``, ``minimal`` given M, and Pinocchio's
 ``impulseDynamics`` (which runs its own CRBA) with J+; and one free-coordinate right-hand side

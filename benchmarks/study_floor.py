@@ -4,9 +4,9 @@ Runs the first ``--cases`` samples of a study (default ``studies/ur10_envelope.y
 process, one worker's way; by default as many as one batch of the target's study,
 ``min(BATCH_CASES, total / (4 x workers))``, 1,250 for 10,000 cases on 2 workers. It reports
 the records' mean build, simulate and report times (their sum is what a worker spends) [ms] from
-:func:`vtm_pin.study_runner.run_cases` (batched engine, one chunk), and the batched engine's
-states and Pinocchio passes per case from :func:`vtm_pin.batch.run_many` on the same cases. It times
-``pin.rneaInParallel`` and ``pin.abaInParallel`` (1 thread, as in a worker) on batches of the
+:func:`vtm_pin.study.runner.run_cases` (batched engine, one chunk), and the batched engine's
+states and Pinocchio passes per case from :func:`vtm_pin.core.batch.run_many` on the same cases. It
+times ``pin.rneaInParallel`` and ``pin.abaInParallel`` (1 thread, as in a worker) on batches of the
 study's model states, of the engine's mean batch size, and the import of the command
 (``import vtm_pin.cli`` in a fresh interpreter, less an empty one).
 
@@ -34,12 +34,12 @@ import numpy as np
 import pinocchio as pin
 from benchlib import median_time
 
-from vtm_pin.batch import run_many
-from vtm_pin.results import SimulationResult
-from vtm_pin.robot import RobotCache
-from vtm_pin.scenario import build_scenario
-from vtm_pin.study import find_study, load_study, resolve_case
-from vtm_pin.study_runner import BATCH_CASES, CaseTask, run_cases
+from vtm_pin.core.batch import run_many
+from vtm_pin.core.results import SimulationResult
+from vtm_pin.physics.robot import RobotCache
+from vtm_pin.scene.scenario import build_scenario
+from vtm_pin.study.cases import find_study, load_study, resolve_case
+from vtm_pin.study.runner import BATCH_CASES, CaseTask, run_cases
 
 #: The per-case timing split of a study's records.
 PARTS = ("build", "simulate", "report")

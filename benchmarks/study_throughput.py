@@ -1,6 +1,6 @@
 """Study throughput: cases per second on 1 and 2 workers, and where a case's time goes.
 
-Runs a shipped study (``ur10_annex_b``, 162 cases, by default) with ``vtm_pin.study_runner``
+Runs a shipped study (``ur10_annex_b``, 162 cases, by default) with ``vtm_pin.study.runner``
 into fresh folders, ``--repeat`` times per worker count, and prints the median wall time of the
 whole study (cases and the final table, graphs and report) and of its two phases (running the
 cases; writing the outputs), the cases per second of each, the speed-ups of 2 workers over 1,
@@ -19,8 +19,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from vtm_pin.study import find_study, load_study
-from vtm_pin.study_runner import run_study
+from vtm_pin.study.cases import find_study, load_study
+from vtm_pin.study.runner import run_study
 
 PARTS = ("build", "simulate", "report", "write")
 

@@ -1,4 +1,6 @@
-"""The scenario key reference, generated from ``vtm_pin.scenario.SCHEMA`` so that it cannot drift.
+"""The scenario key reference, generated from the scenario schema so that it cannot drift.
+
+The schema is ``vtm_pin.scene.scenario.SCHEMA``.
 
 MkDocs runs this file as a hook (``hooks:`` in ``mkdocs.yml``): the marker
 ``<!-- scenario-keys -->`` in a page is replaced by a table with one row per key path
@@ -112,6 +114,6 @@ def on_page_markdown(markdown: str, **_: Any) -> str:
     """MkDocs hook: put the generated table where a page has the marker."""
     if MARKER not in markdown:
         return markdown
-    from vtm_pin.scenario import SCHEMA
+    from vtm_pin.scene.scenario import SCHEMA
 
     return markdown.replace(MARKER, key_table(SCHEMA))

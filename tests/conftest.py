@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from vtm_pin import Problem, Robot, SimulationResult, load_robot, simulate
-from vtm_pin.brakes import Brake
-from vtm_pin.friction import Coulomb
-from vtm_pin.stop import Stop
+from vtm_pin.physics.brakes import Brake
+from vtm_pin.physics.friction import Coulomb
+from vtm_pin.physics.stop import Stop
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "scenarios"

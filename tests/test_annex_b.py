@@ -1,4 +1,4 @@
-"""ISO 10218-1 Annex-B test conditions (vtm_pin.annex_b) on UR5, UR10, Panda and RX160L.
+"""ISO 10218-1 Annex-B test conditions (vtm_pin.scene.annex_b) on UR5, UR10, Panda and RX160L.
 
 The checks that R is right do not reuse the module's code: they pose the arms with Pinocchio's
 forward kinematics and a 1-D root search of their own.
@@ -14,8 +14,9 @@ import pytest
 from conftest import robot
 from scipy.optimize import brentq
 
-from vtm_pin import annex_b
-from vtm_pin.annex_b import (
+from vtm_pin.exceptions import ConditionsError
+from vtm_pin.scene import annex_b
+from vtm_pin.scene.annex_b import (
     DIRECTIONS,
     Conditions,
     compute_test_state,
@@ -24,7 +25,6 @@ from vtm_pin.annex_b import (
     horizontal_reach,
     max_reach,
 )
-from vtm_pin.exceptions import ConditionsError
 
 #: Guess poses [rad]: UR arms in a usual working pose, the Panda's ready pose (fingers half
 #: open [m]), the RX160L at zero (straight up).

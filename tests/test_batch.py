@@ -21,13 +21,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import vtm_pin as vp
-from vtm_pin.batch import _Dynamics, fallback_reason, model_key, run_many, simulate_many
-from vtm_pin.dynamics import compute_M
+from vtm_pin.core.batch import _Dynamics, fallback_reason, model_key, run_many, simulate_many
 from vtm_pin.exceptions import SimulationError, VtmError
-from vtm_pin.integrators import DOP853, RK4
-from vtm_pin.scenario import SCENARIOS_DIR
-from vtm_pin.study import find_study, load_study
-from vtm_pin.study_runner import format_study, run_study
+from vtm_pin.numerics.dynamics import compute_M
+from vtm_pin.numerics.integrators import DOP853, RK4
+from vtm_pin.scene.scenario import SCENARIOS_DIR
+from vtm_pin.study.cases import find_study, load_study
+from vtm_pin.study.runner import format_study, run_study
 
 TOLERANCE = 1e-8
 
@@ -339,7 +339,7 @@ def test_batched_dynamics_with_locks_equal_the_reduced_equations() -> None:
 
 def test_a_singular_lane_is_nan_and_leaves_the_others_solved() -> None:
     """One singular M_ff gives NaN in its own lane only: that run fails, not the batch."""
-    from vtm_pin.batch import _solve_each
+    from vtm_pin.core.batch import _solve_each
 
     A = np.stack([np.eye(2) * 2.0, np.zeros((2, 2)), np.array([[1.0, 1.0], [0.0, 1.0]])])
     rhs = np.array([[2.0, 4.0], [1.0, 1.0], [3.0, 1.0]])

@@ -71,7 +71,8 @@ def test_unknown_method_is_refused():
 
 def test_the_runtime_modules_do_not_import_benchmark_code():
     code = (
-        "import sys, vtm_pin.cli, vtm_pin.plotting, vtm_pin.report, vtm_pin.drawing; "
+        "import sys, vtm_pin.cli, vtm_pin.outputs.plotting, vtm_pin.outputs.report, "
+        "vtm_pin.outputs.drawing; "
         "print(sorted(m for m in sys.modules if 'bench' in m))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

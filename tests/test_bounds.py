@@ -24,13 +24,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import vtm_pin as vp
-from vtm_pin.bounds import BoundSpec, Uncertainty, shortfall_allowance, upper_bounds, variants
-from vtm_pin.calibration import calibrate, make_figures, priors, simulate_row
-from vtm_pin.calibration_report import calibrated_fragment, uncertainty_section
-from vtm_pin.pipeline import run
-from vtm_pin.robot import load_robot
-from vtm_pin.scenario import build_scenario
-from vtm_pin.stopping_table import COLUMNS, read_stopping_table
+from vtm_pin.calibration.fit import calibrate, make_figures, priors, simulate_row
+from vtm_pin.calibration.report import calibrated_fragment, uncertainty_section
+from vtm_pin.calibration.table import COLUMNS, read_stopping_table
+from vtm_pin.outputs.pipeline import run
+from vtm_pin.physics.robot import load_robot
+from vtm_pin.scene.scenario import build_scenario
+from vtm_pin.standards.bounds import (
+    BoundSpec,
+    Uncertainty,
+    shortfall_allowance,
+    upper_bounds,
+    variants,
+)
 
 ROBOT = "ur3"  # example-robot-data, no gear ratio: torques and speeds joint side
 ROWS = [  # joint, label, speed [deg/s], payload [kg], extension [%], motion
@@ -382,7 +388,7 @@ def test_command_line_integrator_options_reach_the_bounds_variant_runs(tmp_path)
     import argparse
 
     from vtm_pin.cli import _with_integrator_options
-    from vtm_pin.figures import bound_variants
+    from vtm_pin.outputs.figures import bound_variants
 
     raw = prediction(tmp_path, bounds={"brake_wear": 0.1}, include=False)
     scenario = build_scenario(raw, base_dir=tmp_path)

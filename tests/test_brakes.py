@@ -6,12 +6,12 @@ import pytest
 from conftest import RESLIP_BRAKE, RESLIP_KINDS, robot, run_reslip
 
 from vtm_pin import RK4, LockEvent, Problem, compute_energy_momentum, compute_M, simulate
-from vtm_pin.brakes import ROUNDOFF, Brake, BrakeMode
+from vtm_pin.core.phase import Phase
+from vtm_pin.core.topology import Topology
 from vtm_pin.exceptions import BrakeError
-from vtm_pin.friction import Coulomb, Stribeck
-from vtm_pin.phase import Phase
-from vtm_pin.stop import Stop
-from vtm_pin.topology import Topology
+from vtm_pin.physics.brakes import ROUNDOFF, Brake, BrakeMode
+from vtm_pin.physics.friction import Coulomb, Stribeck
+from vtm_pin.physics.stop import Stop
 
 Q0 = np.array([0.0, 1.2, 0.0])  # [rad]
 V0 = np.array([2.0, 0.0, 0.0])  # [rad/s]

@@ -24,13 +24,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vtm_pin import Drive, Problem, load_robot, simulate
-from vtm_pin.brakes import Brake
-from vtm_pin.drives import ShortCircuit, short_circuit
-from vtm_pin.dynamics import compute_M
 from vtm_pin.exceptions import BrakeError
-from vtm_pin.friction import Coulomb, Viscous
-from vtm_pin.integrators import DOP853
-from vtm_pin.stop import Stop
+from vtm_pin.numerics.dynamics import compute_M
+from vtm_pin.numerics.integrators import DOP853
+from vtm_pin.physics.brakes import Brake
+from vtm_pin.physics.drives import ShortCircuit, short_circuit
+from vtm_pin.physics.friction import Coulomb, Viscous
+from vtm_pin.physics.stop import Stop
 
 _positive = st.floats(1e-6, 1e6, allow_nan=False, allow_infinity=False)
 _speed = st.floats(-1e4, 1e4, allow_nan=False, allow_infinity=False)

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from vtm_pin import VtmWarning
-from vtm_pin.calibration import (
+from vtm_pin.calibration.fit import (
     FIGURES,
     CalibrationError,
     _start,
@@ -21,12 +21,12 @@ from vtm_pin.calibration import (
     row_scenario,
     simulate_row,
 )
-from vtm_pin.calibration_report import calibrated_fragment
+from vtm_pin.calibration.report import calibrated_fragment
+from vtm_pin.calibration.table import COLUMNS, read_stopping_table
 from vtm_pin.cli import main
-from vtm_pin.pipeline import run
-from vtm_pin.robot import ROBOTS_DIR, load_robot
-from vtm_pin.scenario import SCENARIOS_DIR, build_scenario
-from vtm_pin.stopping_table import COLUMNS, read_stopping_table
+from vtm_pin.outputs.pipeline import run
+from vtm_pin.physics.robot import ROBOTS_DIR, load_robot
+from vtm_pin.scene.scenario import SCENARIOS_DIR, build_scenario
 
 UR5_TABLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "ur5_cb3_stopping_cat0.csv"
 #: The synthetic robot: an example-robot-data arm (no gear ratio: torques are joint side).

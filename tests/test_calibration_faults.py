@@ -18,11 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from vtm_pin.calibration import CalibrationError, check_table
-from vtm_pin.cli import main
-from vtm_pin.exceptions import SimulationError, VtmError
-from vtm_pin.robot import ROBOTS_DIR
-from vtm_pin.stopping_table import (
+from vtm_pin.calibration.fit import CalibrationError, check_table
+from vtm_pin.calibration.table import (
     COLUMNS,
     MAX_MEAN_SPEED_RATIO,
     MAX_ROWS,
@@ -30,6 +27,9 @@ from vtm_pin.stopping_table import (
     read_stopping_table,
     robot_matches,
 )
+from vtm_pin.cli import main
+from vtm_pin.exceptions import SimulationError, VtmError
+from vtm_pin.physics.robot import ROBOTS_DIR
 
 UR5_TABLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "ur5_cb3_stopping_cat0.csv"
 ROBOT = "ur5_cb3"
@@ -120,7 +120,7 @@ def test_a_row_whose_simulation_fails_during_the_fit_is_named(
     def chatter(*args, **kwargs):
         raise SimulationError("More than 10000 brake state events by t = 0.1 s (chatter)")
 
-    monkeypatch.setattr("vtm_pin.pipeline.run", chatter)
+    monkeypatch.setattr("vtm_pin.outputs.pipeline.run", chatter)
     table = write_rows(tmp_path / "table.csv", ur5_rows())
     err = refusal(capsys, table, tmp_path / "out", "--fit", "delay")
     assert err.startswith(f"vtm-pin: error: {table}: 'row 2': simulating it failed at the "), err

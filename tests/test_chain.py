@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from vtm_pin import TRANSITIONS, Problem, RobotLoadError, compute_M, simulate
-from vtm_pin.chain import LINK_LENGTH, build_chain
-from vtm_pin.constraints import lock_jacobian
-from vtm_pin.integrators import DOP853
+from vtm_pin.numerics.constraints import lock_jacobian
+from vtm_pin.numerics.integrators import DOP853
+from vtm_pin.physics.chain import LINK_LENGTH, build_chain
 
 
 @pytest.mark.parametrize("spatial", [False, True])

@@ -194,12 +194,12 @@ def test_progress_bar_on_a_terminal_only(tmp_path, capsys, monkeypatch):
 
 
 def test_interrupt_exits_130_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    import vtm_pin.pipeline
+    import vtm_pin.outputs.pipeline
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", interrupted)
+    monkeypatch.setattr(vtm_pin.outputs.pipeline, "run_scenario", interrupted)
     out = tmp_path / "out"
     assert main(["run", str(PAPER), "--out", str(out)]) == 130
     assert capsys.readouterr().err == "vtm-pin: interrupted; nothing written\n"
@@ -246,9 +246,9 @@ def fail_if_simulated(*args, **kwargs):
 
 @pytest.mark.parametrize("where", ["afile/out", "afile", "afile/a/b"])
 def test_out_under_a_file_is_refused_before_the_simulation(tmp_path, capsys, monkeypatch, where):
-    import vtm_pin.pipeline
+    import vtm_pin.outputs.pipeline
 
-    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", fail_if_simulated)
+    monkeypatch.setattr(vtm_pin.outputs.pipeline, "run_scenario", fail_if_simulated)
     (tmp_path / "afile").write_text("x")
     assert main(["run", str(PAPER), "--out", str(tmp_path / where)]) == 1
     err = capsys.readouterr().err
@@ -258,9 +258,9 @@ def test_out_under_a_file_is_refused_before_the_simulation(tmp_path, capsys, mon
 
 
 def test_out_in_an_unwritable_place_is_refused_before_the_simulation(capsys, monkeypatch):
-    import vtm_pin.pipeline
+    import vtm_pin.outputs.pipeline
 
-    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", fail_if_simulated)
+    monkeypatch.setattr(vtm_pin.outputs.pipeline, "run_scenario", fail_if_simulated)
     assert main(["run", str(PAPER), "--out", "/proc/vtm-pin-test/out"]) == 1
     assert capsys.readouterr().err.startswith("vtm-pin: error: command line: '--out': cannot write")
 
@@ -325,7 +325,7 @@ def test_sigint_early_in_a_real_process_exits_130_in_one_line(tmp_path):
 def test_failure_prints_its_error_only_and_numpy_warnings_never(tmp_path, capsys, monkeypatch):
     import warnings
 
-    import vtm_pin.pipeline
+    import vtm_pin.outputs.pipeline
     from vtm_pin import SimulationError, VtmWarning
 
     def noisy(*args, **kwargs):
@@ -333,19 +333,19 @@ def test_failure_prints_its_error_only_and_numpy_warnings_never(tmp_path, capsys
         warnings.warn("something was assumed", VtmWarning, stacklevel=1)
         raise SimulationError("it went wrong\non two lines")
 
-    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", noisy)
+    monkeypatch.setattr(vtm_pin.outputs.pipeline, "run_scenario", noisy)
     assert main(["run", str(PAPER), "--out", str(tmp_path / "out")]) == 1
     assert capsys.readouterr().err == "vtm-pin: error: it went wrong on two lines\n"
     assert list(tmp_path.iterdir()) == []
 
 
 def test_a_bug_is_one_line_too(tmp_path, capsys, monkeypatch):
-    import vtm_pin.pipeline
+    import vtm_pin.outputs.pipeline
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("division by zero")
 
-    monkeypatch.setattr(vtm_pin.pipeline, "run_scenario", broken)
+    monkeypatch.setattr(vtm_pin.outputs.pipeline, "run_scenario", broken)
     assert main(["run", str(PAPER), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("vtm-pin: error: internal error (ZeroDivisionError: division by zero)")

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from vtm_pin import TransitionError
-from vtm_pin.constraints import lock_jacobian, orthogonal_complement
+from vtm_pin.numerics.constraints import lock_jacobian, orthogonal_complement
 
 
 def test_lock_jacobian_has_unit_rows():

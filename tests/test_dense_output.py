@@ -18,10 +18,10 @@ from conftest import SCENARIOS
 
 from vtm_pin.cli import _with_integrator_options
 from vtm_pin.exceptions import ScenarioError
-from vtm_pin.integrators import DOP853, StateEvent
-from vtm_pin.integrators.dop853 import GRID_SLACK
-from vtm_pin.pipeline import RunOutput, run
-from vtm_pin.scenario import build_integrator, build_scenario
+from vtm_pin.numerics.integrators import DOP853, StateEvent
+from vtm_pin.numerics.integrators.dop853 import GRID_SLACK
+from vtm_pin.outputs.pipeline import RunOutput, run
+from vtm_pin.scene.scenario import build_integrator, build_scenario
 
 RTOL, ATOL = 1e-8, 1e-10  # dop853 tolerances of these tests [-], [state units]
 T0, T1 = 0.05, 2.03  # [s] an interval that starts and ends off the grid

@@ -10,7 +10,7 @@ import re
 import pytest
 from conftest import ROOT
 
-from vtm_pin.scenario import SCHEMA
+from vtm_pin.scene.scenario import SCHEMA
 
 README = (ROOT / "README.md").read_text()
 DOCS = ROOT / "docs"

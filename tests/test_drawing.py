@@ -4,7 +4,7 @@ from conftest import SCENARIOS, robot
 from matplotlib.figure import Figure
 
 from vtm_pin import SimulationError, load_scenario, run_scenario
-from vtm_pin.drawing import (
+from vtm_pin.outputs.drawing import (
     compute_skeleton,
     draw_robot,
     plot_poses,

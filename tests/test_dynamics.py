@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vtm_pin import Topology, compute_bias, compute_energy, compute_forward_dynamics, compute_M
-from vtm_pin.dynamics import solve_small
+from vtm_pin.numerics.dynamics import solve_small
 
 # Two Pinocchio algorithms (ABA on a reduced model vs CRBA + RNEA + Cholesky) agree to
 # round-off amplified by cond(M) <= ~1e4 for these arms.

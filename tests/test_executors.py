@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-import vtm_pin.executors as executors
+import vtm_pin.study.executors as executors
 from vtm_pin.cli import EXIT_INTERRUPTED, main
 
 VTM_PIN = Path(sys.executable).with_name("vtm-pin")
@@ -199,7 +199,7 @@ def test_a_scheduler_without_workers_is_refused_after_the_stated_wait(
     study = write_one_case(tmp_path)
     wait = 2.0  # WORKERS_TIMEOUT, shortened for the test (30 s by default)
     code = (
-        "import sys, vtm_pin.executors as e; from vtm_pin.__main__ import entry_point; "
+        "import sys, vtm_pin.study.executors as e; from vtm_pin.__main__ import entry_point; "
         f"e.WORKERS_TIMEOUT = {wait}; sys.exit(entry_point())"
     )
     address = local_cluster.scheduler_address  # type: ignore[attr-defined]
@@ -403,7 +403,7 @@ def test_the_workers_of_a_bare_pool_die_with_their_zombie_driver(tmp_path: Path)
     script = tmp_path / "driver.py"
     script.write_text(
         "import sys, time\n"
-        "import vtm_pin.executors as e\n"
+        "import vtm_pin.study.executors as e\n"
         "def sleep(piece):\n"
         "    time.sleep(piece[0])\n"
         "    return [{'case': piece[0]}]\n"

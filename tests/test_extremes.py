@@ -17,8 +17,8 @@ from vtm_pin import (
     load_robot,
     simulate,
 )
-from vtm_pin.constraints import lock_jacobian
-from vtm_pin.integrators import DOP853, SemiImplicitEuler
+from vtm_pin.numerics.constraints import lock_jacobian
+from vtm_pin.numerics.integrators import DOP853, SemiImplicitEuler
 
 Q0 = np.full(3, np.pi / 6)  # [rad]
 V0 = np.array([1.0, -2.0, 1.5])  # [rad/s]

@@ -9,10 +9,10 @@ import yaml
 from conftest import SCENARIOS, robot
 
 from vtm_pin import Problem, simulate
-from vtm_pin.brakes import Brake
-from vtm_pin.friction import Coulomb, IdealLock, Stribeck
-from vtm_pin.integrators import DOP853
-from vtm_pin.stop import Stop
+from vtm_pin.numerics.integrators import DOP853
+from vtm_pin.physics.brakes import Brake
+from vtm_pin.physics.friction import Coulomb, IdealLock, Stribeck
+from vtm_pin.physics.stop import Stop
 
 
 def test_laws_share_the_interface_and_the_ramp():
@@ -127,7 +127,7 @@ def test_stribeck_brake_never_holds_beyond_its_static_torque():
     from conftest import Q0_RESLIP, V0_RESLIP
 
     from vtm_pin import RK4
-    from vtm_pin.brakes import ROUNDOFF, BrakeMode
+    from vtm_pin.physics.brakes import ROUNDOFF, BrakeMode
 
     brake = Brake("joint1", friction=Stribeck(300.0, 400.0, stribeck_velocity=0.5))
     problem = Problem(robot("planar_3r"), Q0_RESLIP, V0_RESLIP, 3.0, brakes=(brake,), stop=Stop())

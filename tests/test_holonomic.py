@@ -13,17 +13,17 @@ from vtm_pin import (
     run_scenario,
     simulate,
 )
-from vtm_pin.constraints import check_independent, lock_jacobian
-from vtm_pin.holonomic import (
+from vtm_pin.core.holonomic import (
     FrameConstraint,
     compute_kinematics,
     project_initial_state,
     stack,
 )
-from vtm_pin.integrators import DOP853
-from vtm_pin.phase import Phase
-from vtm_pin.topology import Topology
-from vtm_pin.transitions.projected import compute_null_space_projector
+from vtm_pin.core.phase import Phase
+from vtm_pin.core.topology import Topology
+from vtm_pin.numerics.constraints import check_independent, lock_jacobian
+from vtm_pin.numerics.integrators import DOP853
+from vtm_pin.numerics.transitions.projected import compute_null_space_projector
 
 LOOP = FrameConstraint("loop", "tip_l", "tip_r", "point", ("x", "z"))
 Q_FIVEBAR = np.array([-0.4, 0.57978007700581935, 0.2, 0.16334925102132061])  # [rad], closed

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
 from vtm_pin.cli import main
-from vtm_pin.robot import ROBOTS_DIR, load_robot
-from vtm_pin.scenario import SCENARIOS_DIR, load_scenario
+from vtm_pin.physics.robot import ROBOTS_DIR, load_robot
+from vtm_pin.scene.scenario import SCENARIOS_DIR, load_scenario
+from vtm_pin.schemas import schema_file
 from vtm_pin.shipped import shipped_names
-from vtm_pin.study import STUDIES_DIR, load_study
+from vtm_pin.study.cases import STUDIES_DIR, load_study
 
 
 @pytest.mark.parametrize("name", shipped_names("scenario"))
@@ -25,6 +27,15 @@ def test_every_shipped_scenario_builds_from_its_copy(name, tmp_path, monkeypatch
     shipped = load_scenario(SCENARIOS_DIR / f"{name}.yaml")
     assert copy.raw == shipped.raw  # the same scenario, fragments merged
     assert (copy.q0 == shipped.q0).all() and copy.brakes == shipped.brakes
+    assert_schema_line(tmp_path / "mine" / f"{name}.yaml", "scenario")
+
+
+def assert_schema_line(copy, kind):
+    """The copy's editor schema line names the installed schema by an absolute path."""
+    first = copy.read_text().splitlines()[0]
+    assert first.startswith("# yaml-language-server: $schema=/"), first
+    named = Path(first.split("=", 1)[1])
+    assert named.is_file() and named.samefile(Path(str(schema_file(kind))))
 
 
 def test_a_copied_scenario_with_a_fragment_runs_from_another_folder(tmp_path, monkeypatch, capsys):
@@ -53,6 +64,7 @@ def test_every_shipped_study_loads_from_its_copy(name, tmp_path, monkeypatch, ca
     shipped = load_study(STUDIES_DIR / f"{name}.yaml")
     assert copy.scenario.resolve() == shipped.scenario.resolve()
     assert copy.size == shipped.size and copy.base == shipped.base
+    assert_schema_line(tmp_path / "mine" / f"{name}.yaml", "study")
 
 
 def test_a_copied_robot_runs_beside_its_data(tmp_path, monkeypatch, capsys):

@@ -8,7 +8,14 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from vtm_pin.exceptions import ScenarioError, excerpt
-from vtm_pin.inputs import MAX_DEPTH, MAX_FILE_BYTES, MAX_NODES, _walk, check_schema, read_yaml
+from vtm_pin.files.inputs import (
+    MAX_DEPTH,
+    MAX_FILE_BYTES,
+    MAX_NODES,
+    _walk,
+    check_schema,
+    read_yaml,
+)
 
 SCHEMA = {
     "type": "object",
@@ -179,7 +186,7 @@ _VALUES = st.one_of(
 )
 @example(key="stop", inner="category", value=False)  # 0 == False, but False is no category
 def test_checking_against_a_valid_base_raises_as_the_whole_check_does(key, inner, value):
-    from vtm_pin.scenario import SCHEMA as SCENARIO_SCHEMA
+    from vtm_pin.scene.scenario import SCHEMA as SCENARIO_SCHEMA
 
     base = read_yaml(SCENARIOS / "ur10_annex_b.yaml", ScenarioError)
     raw = copy.deepcopy(base)
@@ -200,7 +207,7 @@ def test_checking_against_a_valid_base_raises_as_the_whole_check_does(key, inner
 
 def test_checking_against_a_valid_base_counts_every_value_of_the_case():
     """A base at the value limit passes; a case that adds one value to it must not."""
-    from vtm_pin.scenario import SCHEMA as SCENARIO_SCHEMA
+    from vtm_pin.scene.scenario import SCHEMA as SCENARIO_SCHEMA
 
     base = dict(read_yaml(SCENARIOS / "ur10_annex_b.yaml", ScenarioError))
     base.pop("payload")

@@ -3,7 +3,7 @@ import pytest
 from conftest import RESLIP_KINDS, robot, run_reslip
 
 from vtm_pin import RK4, LockEvent, Problem, compute_energy_momentum, simulate
-from vtm_pin.integrators import DOP853, SemiImplicitEuler
+from vtm_pin.numerics.integrators import DOP853, SemiImplicitEuler
 
 Q0 = np.full(3, np.pi / 6)  # [rad]
 PAPER = [LockEvent(0.8, ("joint2",)), LockEvent(1.3, ("joint3",))]
@@ -113,7 +113,7 @@ def test_event_from_exactly_zero_fires_when_the_function_comes_back(integrator, 
     """g = y0 with y0' = d (1 - 2t), y0(0) = 0: g leaves zero for the side before the
     crossing and returns through zero at t = 1 s, inside one step. It must fire there
     (a joint starting to slide from rest, stopped again by its rising friction)."""
-    from vtm_pin.integrators import StateEvent
+    from vtm_pin.numerics.integrators import StateEvent
 
     d = -direction  # the side g leaves for first
 
@@ -132,7 +132,7 @@ def test_event_from_exactly_zero_leaving_to_the_far_side_fires_at_once(t0):
     """No point on the before side: the handler's state disagrees with the motion at once,
     so the event is taken at once (the event tolerance, or a few ulps of t where that is
     larger), not after a whole step of wrong motion, and never at a zero-length step."""
-    from vtm_pin.integrators import StateEvent
+    from vtm_pin.numerics.integrators import StateEvent
 
     event = StateEvent(lambda t, y: float(y[0]), -1)
     rk4 = RK4(0.5, event_tol=1e-14)
@@ -192,7 +192,7 @@ def test_dop853_tables_are_scipys_to_the_last_bit():
     """The tables are the project's own; this pins them to scipy's (private) transcription."""
     from scipy.integrate._ivp import dop853_coefficients as scipy_tables
 
-    from vtm_pin.integrators import dop853_coefficients as tables
+    from vtm_pin.numerics.integrators import dop853_coefficients as tables
 
     for name in ("A", "B", "C", "D", "E3", "E5"):
         np.testing.assert_array_equal(getattr(tables, name), getattr(scipy_tables, name), name)
@@ -228,7 +228,7 @@ def test_dop853_with_a_writing_right_hand_side_is_bit_for_bit_the_returning_one(
     output (``output_dt``) and a state event located on it.
     """
     from vtm_pin import Topology
-    from vtm_pin.integrators import StateEvent
+    from vtm_pin.numerics.integrators import StateEvent
 
     topology = Topology(robot("planar_3r"), [1], Q0)
     y0 = topology.split(Q0, np.array([0.4, 0.0, -0.3]))

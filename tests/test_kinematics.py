@@ -3,7 +3,11 @@ import pinocchio as pin
 import pytest
 from conftest import robot
 
-from vtm_pin.kinematics import compute_tool_jacobian, compute_tool_motion, compute_tool_positions
+from vtm_pin.physics.kinematics import (
+    compute_tool_jacobian,
+    compute_tool_motion,
+    compute_tool_positions,
+)
 
 #: Against closed-form geometry: round-off of sums of a few sines and cosines [m, m/s, m/rad].
 FK_TOL = 1e-12

@@ -1,4 +1,8 @@
-"""The package's import graph has no circles: data flows one way through the modules.
+"""The package's layers: data flows one way, and its import graph has no circles.
+
+The layers are an import-linter contract in ``pyproject.toml`` (``[tool.importlinter]``):
+files and schemas, numerics and standards, physics, core, scene, outputs, study and
+calibration, then the CLI. A module may import its own layer and those below it.
 
 The graph is read from the source (every ``import`` and ``from ... import``, including those
 inside functions and under ``TYPE_CHECKING``: an import deferred for speed is still a
@@ -8,11 +12,30 @@ dependency). The package's ``__init__`` is the public surface and may import any
 from __future__ import annotations
 
 import ast
+import importlib
+import shutil
+import subprocess
+import sys
 from pathlib import Path
+
+import pytest
 
 import vtm_pin
 
 PACKAGE = Path(vtm_pin.__file__).parent
+PROJECT = PACKAGE.parent
+#: The subpackages, bottom layer first, as the contract lists them.
+SUBPACKAGES = (
+    "files",
+    "numerics",
+    "standards",
+    "physics",
+    "core",
+    "scene",
+    "outputs",
+    "study",
+    "calibration",
+)
 
 
 def import_graph(root: Path, package: str) -> dict[str, set[str]]:
@@ -99,3 +122,52 @@ def test_a_circle_is_found(tmp_path: Path) -> None:
     graph = import_graph(root, "pkg")
     assert graph["pkg.low"] == {"pkg.sub.high"} and graph["pkg.sub.high"] == {"pkg.low"}
     assert circles(graph) == [["pkg.low", "pkg.sub.high"]]
+
+
+def lint_imports(package_parent: Path, tmp_path: Path) -> subprocess.CompletedProcess[str]:
+    """Run the project's import-linter contract on the package found in ``package_parent``."""
+    pytest.importorskip("importlinter", reason="import-linter is in the test and dev extras")
+    shutil.copy(PROJECT / "pyproject.toml", tmp_path / "contract.toml")
+    code = (
+        "import sys; from importlinter.cli import lint_imports; "
+        f"sys.exit(lint_imports(config_filename={str(tmp_path / 'contract.toml')!r}, "
+        "no_cache=True, no_logo=True))"
+    )
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env={"PYTHONPATH": str(package_parent), "PATH": "/usr/bin:/bin"},
+        timeout=120,  # grimp builds the graph of 70 modules in well under a second
+    )
+
+
+def test_no_module_imports_from_a_layer_above(tmp_path: Path) -> None:
+    result = lint_imports(PROJECT, tmp_path)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "1 kept, 0 broken" in result.stdout
+
+
+def test_an_upward_import_breaks_the_contract(tmp_path: Path) -> None:
+    """A friction law (physics) that imports the study runner (a layer above) is refused."""
+    copy = tmp_path / "src"
+    shutil.copytree(PACKAGE, copy / "vtm_pin", ignore=shutil.ignore_patterns("__pycache__"))
+    friction = copy / "vtm_pin" / "physics" / "friction.py"
+    friction.write_text(
+        friction.read_text() + "\n\ndef _upward():\n    from ..study import runner\n"
+    )
+    result = lint_imports(copy, tmp_path)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "BROKEN" in result.stdout
+    assert "vtm_pin.physics.friction -> vtm_pin.study.runner" in result.stdout
+
+
+def test_each_subpackage_says_what_it_owns_and_may_import() -> None:
+    for name in SUBPACKAGES:
+        doc = importlib.import_module(f"vtm_pin.{name}").__doc__ or ""
+        assert doc.splitlines()[0].endswith("."), name
+        assert "May import:" in doc, name
+    assert sorted(p.parent.name for p in PACKAGE.glob("*/__init__.py")) == sorted(
+        (*SUBPACKAGES, "schemas")
+    )

@@ -12,13 +12,13 @@ import pytest
 from conftest import SCENARIOS
 
 from vtm_pin import load_robot, load_scenario
-from vtm_pin.constraints import lock_jacobian
-from vtm_pin.dynamics import compute_M
-from vtm_pin.integrators import DOP853, RK4
-from vtm_pin.model_cache import ModelCache
-from vtm_pin.scenario import run_scenario
-from vtm_pin.topology import Topology, reduced_model, weightless_model
-from vtm_pin.transitions import TRANSITIONS
+from vtm_pin.core.topology import Topology, reduced_model, weightless_model
+from vtm_pin.files.model_cache import ModelCache
+from vtm_pin.numerics.constraints import lock_jacobian
+from vtm_pin.numerics.dynamics import compute_M
+from vtm_pin.numerics.integrators import DOP853, RK4
+from vtm_pin.numerics.transitions import TRANSITIONS
+from vtm_pin.scene.scenario import run_scenario
 
 #: Two exact methods compared; round-off grows with cond(M) (see test_recursive_transition).
 RTOL = 1e-12

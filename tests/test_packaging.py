@@ -91,7 +91,8 @@ def run_checked(command: list[str], cwd: Path) -> subprocess.CompletedProcess[st
 def check_installed_wheel(python: Path, elsewhere: Path) -> None:
     """vtm_pin, its robots, scenarios and schemas come from the wheel; run, list and init work."""
     code = (
-        "import vtm_pin, vtm_pin.robot as r, vtm_pin.scenario as s, vtm_pin.schemas as j; "
+        "import vtm_pin, vtm_pin.physics.robot as r, vtm_pin.scene.scenario as s, "
+        "vtm_pin.schemas as j; "
         "print(vtm_pin.__file__); print(r.ROBOTS_DIR); print(s.SCENARIOS_DIR); "
         "print(j.schema_file('scenario')); print(j.schema_file('study'))"
     )

@@ -1,4 +1,4 @@
-"""A rigid payload fixed to a robot frame (``vtm_pin.payload``).
+"""A rigid payload fixed to a robot frame (``vtm_pin.physics.payload``).
 
 The dynamics of a robot carrying a payload are checked against an independent Pinocchio
 model: the robot's URDF with the payload appended by hand as a link on a fixed joint, which
@@ -21,9 +21,9 @@ from conftest import robot
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vtm_pin.dynamics import compute_M
 from vtm_pin.exceptions import PayloadError, SettingError
-from vtm_pin.payload import (
+from vtm_pin.numerics.dynamics import compute_M
+from vtm_pin.physics.payload import (
     Payload,
     attach_payload,
     check_payload,
@@ -32,7 +32,7 @@ from vtm_pin.payload import (
     payload_frame,
     payload_summary,
 )
-from vtm_pin.robot import Drive, Robot, load_robot
+from vtm_pin.physics.robot import Drive, Robot, load_robot
 
 #: Agreement of M, RNEA and ABA with the hand-built reference model, relative to the largest
 #: entry: both add the same spatial inertias, only in another order and through another

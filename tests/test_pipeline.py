@@ -9,14 +9,14 @@ from matplotlib.figure import Figure
 
 from vtm_pin import ScenarioError, load_scenario
 from vtm_pin.exceptions import OutputError
-from vtm_pin.pipeline import (
+from vtm_pin.outputs.pipeline import (
     RunOutput,
     check_output_folder,
     find_scenario,
     run,
     write_outputs,
 )
-from vtm_pin.scenario import SCENARIOS_DIR
+from vtm_pin.scene.scenario import SCENARIOS_DIR
 
 
 @pytest.fixture(scope="module")

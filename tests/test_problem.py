@@ -5,9 +5,9 @@ import pytest
 from conftest import robot
 
 from vtm_pin import RK4, LockEvent, Problem, ProblemError, simulate
-from vtm_pin.brakes import Brake
-from vtm_pin.friction import Coulomb
-from vtm_pin.stop import Stop
+from vtm_pin.physics.brakes import Brake
+from vtm_pin.physics.friction import Coulomb
+from vtm_pin.physics.stop import Stop
 
 Q0 = np.array([0.0, 1.2, 0.0])  # [rad]
 
@@ -68,7 +68,7 @@ def test_variants_reuse_the_robot_and_are_validated_again():
 
 
 def test_the_naive_rule_is_refused_with_frame_constraints():
-    from vtm_pin.holonomic import FrameConstraint
+    from vtm_pin.core.holonomic import FrameConstraint
 
     loop = FrameConstraint("loop", "tip_l", "tip_r", "point", axes=("x", "z"))
     q = np.array([-0.4, 0.57978007700581935, 0.2, 0.16334925102132061])  # [rad], closed

@@ -44,13 +44,13 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from vtm_pin import Drive, Problem, Robot, Scenario, SimulationResult, load_robot, simulate
-from vtm_pin.analysis import compute_energy_momentum
-from vtm_pin.brakes import Brake
-from vtm_pin.friction import Coulomb, Stribeck, Viscous
-from vtm_pin.integrators import DOP853, RK4
-from vtm_pin.report import build_summary, format_stopping, format_summary
-from vtm_pin.stop import Stop
-from vtm_pin.stopping import StoppingReport, compute_stopping_report
+from vtm_pin.numerics.integrators import DOP853, RK4
+from vtm_pin.outputs.analysis import compute_energy_momentum
+from vtm_pin.outputs.report import build_summary, format_stopping, format_summary
+from vtm_pin.outputs.stopping import StoppingReport, compute_stopping_report
+from vtm_pin.physics.brakes import Brake
+from vtm_pin.physics.friction import Coulomb, Stribeck, Viscous
+from vtm_pin.physics.stop import Stop
 
 ROBOTS = ("planar_3r", "ur5", "ur10", "panda", "rx160l")
 
@@ -690,7 +690,7 @@ def check_all_stop(case: EStop) -> None:
 def check_holds_within_static(case: EStop) -> None:
     """A stuck joint's holding torque stays within its static torque at every sample.
 
-    Tolerance: the stick/slip decision's round-off (vtm_pin.brakes.ROUNDOFF of the largest
+    Tolerance: the stick/slip decision's round-off (vtm_pin.physics.brakes.ROUNDOFF of the largest
     holding torque) plus 1e-6 of it for the slip event's location on the step (1e-14 s).
     """
     result = case.run()
@@ -783,7 +783,7 @@ PROPERTIES = {
     ),
     # Category 0 only: there the lock's multiplier is exactly the friction a stuck joint needs;
     # in category 1 the drives' computed torque depends on which joints are locked, and a
-    # joint held by the acceleration test (vtm_pin.brakes, step 3) may show a larger one.
+    # joint held by the acceleration test (vtm_pin.physics.brakes, step 3) may show a larger one.
     "stuck_joints_hold_within_static": (
         check_holds_within_static,
         estops().filter(lambda case: case.stop.category == 0),

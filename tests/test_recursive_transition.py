@@ -7,12 +7,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vtm_pin.chain import build_chain
-from vtm_pin.constraints import lock_jacobian
-from vtm_pin.dynamics import compute_M
-from vtm_pin.robot import load_robot
-from vtm_pin.transitions import TRANSITIONS
-from vtm_pin.transitions.recursive import compute_joint_lock_transition, weightless
+from vtm_pin.numerics.constraints import lock_jacobian
+from vtm_pin.numerics.dynamics import compute_M
+from vtm_pin.numerics.transitions import TRANSITIONS
+from vtm_pin.numerics.transitions.recursive import compute_joint_lock_transition, weightless
+from vtm_pin.physics.chain import build_chain
+from vtm_pin.physics.robot import load_robot
 
 #: Two exact methods compared; their round-off grows with cond(M) (up to ~1e4 on these arms
 #: with armature), so 1e-12 relative to the largest value compared, times that condition.

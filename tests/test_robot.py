@@ -14,7 +14,7 @@ from vtm_pin import (
     compute_M,
     load_robot,
 )
-from vtm_pin.robot import list_local_robots
+from vtm_pin.physics.robot import list_local_robots
 
 # Pinocchio and the closed-form Kane model sum the same terms in a different order:
 # they agree to round-off, ~1e-13 of entries of size ~1e3.
@@ -215,7 +215,7 @@ def test_robot_data_file_gives_drives_and_a_scenario_beside_the_urdf_is_not_one(
 
 
 def test_robot_cache_loads_once_and_keeps_the_most_recent():
-    from vtm_pin.robot import Drive, RobotCache
+    from vtm_pin.physics.robot import Drive, RobotCache
 
     cache = RobotCache(size=2)
     first = cache("planar_3r")

@@ -24,14 +24,14 @@ import yaml
 from conftest import ROOT, SCENARIOS
 
 import vtm_pin as vp
-from vtm_pin.annex_b import Conditions, compute_test_state
 from vtm_pin.cli import main
-from vtm_pin.flags import gravity_loads, static_torques
-from vtm_pin.payload import Payload, attach_payload
-from vtm_pin.robot import load_robot, robot_data
-from vtm_pin.study import find_study, load_study
-from vtm_pin.study_report import plot_stopping_graphs
-from vtm_pin.study_runner import run_study
+from vtm_pin.outputs.flags import gravity_loads, static_torques
+from vtm_pin.physics.payload import Payload, attach_payload
+from vtm_pin.physics.robot import load_robot, robot_data
+from vtm_pin.scene.annex_b import Conditions, compute_test_state
+from vtm_pin.study.cases import find_study, load_study
+from vtm_pin.study.report import plot_stopping_graphs
+from vtm_pin.study.runner import run_study
 
 #: Robot, joints tested at full reach, the guess their pose is sought near.
 SHIPPED = {

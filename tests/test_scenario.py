@@ -7,7 +7,7 @@ import yaml
 from conftest import ROOT, SCENARIOS
 
 from vtm_pin import ScenarioError, build_scenario, load_scenario, run_scenario
-from vtm_pin.scenario import SCHEMA
+from vtm_pin.scene.scenario import SCHEMA
 
 BASE = {
     "robot": "planar_3r",

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from vtm_pin.exceptions import ScenarioError
-from vtm_pin.inputs import read_yaml
-from vtm_pin.pipeline import run
-from vtm_pin.scenario import SCENARIOS_DIR, build_scenario
+from vtm_pin.files.inputs import read_yaml
+from vtm_pin.outputs.pipeline import run
+from vtm_pin.scene.scenario import SCENARIOS_DIR, build_scenario
 
 BASE = read_yaml(SCENARIOS_DIR / "ur10_annex_b.yaml", ScenarioError)
 

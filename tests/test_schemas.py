@@ -3,8 +3,9 @@
 ``vtm_pin/schemas/scenario.schema.json`` and ``study.schema.json`` are the rules of scenario and
 study files. A standard validator (``jsonschema.Draft202012Validator`` on the file as shipped,
 ``$ref`` and all, without the project's finite-number type) must give the project's own schema
-verdict (:func:`vtm_pin.inputs.check_schema`) on every shipped file and on generated bad input:
-the scenarios of ``tests/test_bad_input.py`` and every one-value mutation of the shipped studies.
+verdict (:func:`vtm_pin.files.inputs.check_schema`) on every shipped file and on generated bad
+input: the scenarios of ``tests/test_bad_input.py`` and every one-value mutation of the shipped
+studies.
 
 Compared: schema-level verdicts only, on documents JSON can hold. Left out, and counted:
 
@@ -33,12 +34,12 @@ from conftest import ROOT, SCENARIOS
 from test_bad_input import replaced
 
 from vtm_pin.exceptions import InputError, ScenarioError, StudyError
-from vtm_pin.inputs import check_schema, read_yaml
-from vtm_pin.integrators import INTEGRATORS
-from vtm_pin.scenario import SCENARIOS_DIR, SCHEMA
+from vtm_pin.files.inputs import check_schema, read_yaml
+from vtm_pin.numerics.integrators import INTEGRATORS
+from vtm_pin.numerics.transitions import TRANSITIONS
+from vtm_pin.scene.scenario import SCENARIOS_DIR, SCHEMA
 from vtm_pin.schemas import raw_schema, schema_file
-from vtm_pin.study import STUDIES_DIR, STUDY_SCHEMA
-from vtm_pin.transitions import TRANSITIONS
+from vtm_pin.study.cases import STUDIES_DIR, STUDY_SCHEMA
 
 STUDIES = ROOT / "studies"
 STANDARD = {

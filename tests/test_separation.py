@@ -19,7 +19,7 @@ from conftest import SCENARIOS
 
 import vtm_pin as vp
 from vtm_pin.cli import main
-from vtm_pin.separation import Iso13855, Safeguard, Ssm
+from vtm_pin.standards.separation import Iso13855, Safeguard, Ssm
 
 GUARD = {"detection_time": 0.03, "response_time": 0.012, "latency": 0.004}  # [s]
 ISO13855 = {"approach_speed": 2.0, "intrusion_distance": 0.208, "supplement": 0.1}  # [m/s, m, m]

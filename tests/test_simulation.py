@@ -13,7 +13,7 @@ from vtm_pin import (
     compute_energy_momentum,
     simulate,
 )
-from vtm_pin.integrators import DOP853
+from vtm_pin.numerics.integrators import DOP853
 
 Q0 = np.full(3, np.pi / 6)  # [rad], the paper's release pose
 PAPER_EVENTS = [LockEvent(0.8, ("joint2",)), LockEvent(1.3, ("joint3",))]

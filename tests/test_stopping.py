@@ -3,7 +3,7 @@ import pytest
 from conftest import SCENARIOS
 
 from vtm_pin import load_scenario, run_scenario
-from vtm_pin.stopping import compute_stopping_report
+from vtm_pin.outputs.stopping import compute_stopping_report
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +93,7 @@ def test_stop_time_is_when_the_speed_stays_below_the_rest_speed():
 def test_rest_speed_is_a_scenario_key():
     import yaml
 
-    from vtm_pin.scenario import build_scenario
+    from vtm_pin.scene.scenario import build_scenario
 
     raw = yaml.safe_load((SCENARIOS / "rx160l_estop_cat0.yaml").read_text())
     times = []
@@ -126,7 +126,7 @@ def test_a_joint_still_moving_is_said_in_words(tmp_path):
     assert first["stopped"] is False and first["stop_time"] is None
     assert "rest_speed" in stopping["definition"]
 
-    from vtm_pin.report import format_stopping
+    from vtm_pin.outputs.report import format_stopping
 
     scenario = load_scenario(short)
     report = compute_stopping_report(scenario.robot, run_scenario(scenario), scenario.brakes)

@@ -9,9 +9,7 @@ from conftest import UR_JOINTS
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from vtm_pin.exceptions import InputError
-from vtm_pin.inputs import MAX_FILE_BYTES
-from vtm_pin.stopping_table import (
+from vtm_pin.calibration.table import (
     COLUMNS,
     MOTIONS,
     UNITS,
@@ -21,6 +19,8 @@ from vtm_pin.stopping_table import (
     check_joints,
     read_stopping_table,
 )
+from vtm_pin.exceptions import InputError
+from vtm_pin.files.inputs import MAX_FILE_BYTES
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 UR5_TABLE = DATA / "ur5_cb3_stopping_cat0.csv"

@@ -19,9 +19,9 @@ from conftest import UR_JOINTS
 import vtm_pin as vp
 from vtm_pin.cli import main
 from vtm_pin.exceptions import StudyError
-from vtm_pin.scenario import SCENARIOS_DIR
-from vtm_pin.study import NAMED_AXES, find_study, load_study, resolve_case
-from vtm_pin.study_runner import CASES_FOLDER, run_study
+from vtm_pin.scene.scenario import SCENARIOS_DIR
+from vtm_pin.study.cases import NAMED_AXES, find_study, load_study, resolve_case
+from vtm_pin.study.runner import CASES_FOLDER, run_study
 
 #: Columns that depend on the machine, not on the physics.
 TIMING = ["wall_time"]

@@ -16,8 +16,8 @@ import yaml
 
 pytest.importorskip("distributed")
 
-from vtm_pin.study import load_study
-from vtm_pin.study_runner import run_study
+from vtm_pin.study.cases import load_study
+from vtm_pin.study.runner import run_study
 
 DASK = str(Path(sys.executable).with_name("dask"))
 #: Seconds a cluster may take to come up on a loaded 2-core machine.

@@ -20,7 +20,7 @@ import pandas as pd
 import pytest
 from matplotlib.image import imread
 
-from vtm_pin.study_report import (
+from vtm_pin.study.report import (
     FIGURE_DPI,
     annex_b_table,
     distribution_table,

@@ -24,9 +24,9 @@ import yaml
 
 from vtm_pin import cli
 from vtm_pin.cli import main
-from vtm_pin.staging import _staging_prefix
-from vtm_pin.study import load_study
-from vtm_pin.study_runner import CASES_FOLDER, STATE_FILE, check_record, run_study, seal
+from vtm_pin.files.staging import _staging_prefix
+from vtm_pin.study.cases import load_study
+from vtm_pin.study.runner import CASES_FOLDER, STATE_FILE, check_record, run_study, seal
 
 #: Columns that depend on the machine, not on the physics.
 TIMING = ["wall_time"]
@@ -189,7 +189,7 @@ def test_a_full_disk_names_the_file_it_could_not_write(
     capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from vtm_pin import study_runner
+    from vtm_pin.study import runner as study_runner
 
     def full(*args: object, **kwargs: object) -> object:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
@@ -294,7 +294,7 @@ def test_a_run_that_writes_nothing_leaves_no_folder(
 def test_a_refused_run_never_removes_the_folder_another_holds(tmp_path: Path) -> None:
     """The loser of a race for a new folder must leave the winner's (still empty) folder."""
     from vtm_pin.exceptions import OutputError
-    from vtm_pin.staging import output_lock
+    from vtm_pin.files.staging import output_lock
 
     fcntl = pytest.importorskip("fcntl")
     out = tmp_path / "new"

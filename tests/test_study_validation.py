@@ -15,13 +15,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-import vtm_pin.scenario as scenario_module
+import vtm_pin.scene.scenario as scenario_module
 from vtm_pin.cli import main
 from vtm_pin.exceptions import ScenarioError
-from vtm_pin.inputs import read_yaml
-from vtm_pin.robot import ROBOTS_DIR
-from vtm_pin.scenario import SCENARIOS_DIR
-from vtm_pin.study import STUDIES_DIR, find_study, load_study, resolve_case
+from vtm_pin.files.inputs import read_yaml
+from vtm_pin.physics.robot import ROBOTS_DIR
+from vtm_pin.scene.scenario import SCENARIOS_DIR
+from vtm_pin.study.cases import STUDIES_DIR, find_study, load_study, resolve_case
 
 ROOT = Path(__file__).resolve().parent.parent
 #: The shipped base scenario of the test studies.

@@ -4,9 +4,9 @@ import pytest
 from conftest import robot
 
 from vtm_pin import TRANSITIONS, TransitionError, compute_M
-from vtm_pin.constraints import lock_jacobian, orthogonal_complement
-from vtm_pin.transitions import kkt, solve_saddle_point
-from vtm_pin.transitions.projected import compute_null_space_projector
+from vtm_pin.numerics.constraints import lock_jacobian, orthogonal_complement
+from vtm_pin.numerics.transitions import kkt, solve_saddle_point
+from vtm_pin.numerics.transitions.projected import compute_null_space_projector
 
 CONSISTENT = ["kkt", "projected", "minimal"]
 ROBOTS = ["planar_3r", "ur5", "panda"]

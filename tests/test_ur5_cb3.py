@@ -15,11 +15,11 @@ import pinocchio as pin
 import pytest
 from conftest import UR_JOINTS
 
-from vtm_pin import annex_b
-from vtm_pin.annex_b import Conditions, compute_test_state, horizontal_reach, max_reach
-from vtm_pin.pipeline import run
-from vtm_pin.robot import load_robot
-from vtm_pin.scenario import build_scenario
+from vtm_pin.outputs.pipeline import run
+from vtm_pin.physics.robot import load_robot
+from vtm_pin.scene import annex_b
+from vtm_pin.scene.annex_b import Conditions, compute_test_state, horizontal_reach, max_reach
+from vtm_pin.scene.scenario import build_scenario
 
 JOINTS = UR_JOINTS
 #: UR5 (CB3) DH parameters [m, rad] (UR's table; the CB3 manual's "serie 3").

@@ -14,7 +14,7 @@ import pytest
 from conftest import ROOT, UR_JOINTS
 
 from vtm_pin.cli import main
-from vtm_pin.robot import load_robot
+from vtm_pin.physics.robot import load_robot
 
 pytest.importorskip("xacrodoc")
 
@@ -85,3 +85,21 @@ def test_the_published_ur5_xacro_loads_like_example_robot_data_ur5(tmp_path):
     # the same arm, from two sources: link masses (UR's published 18.4 kg arm) within 1 %
     reference_masses = [reference.model.inertias[j].mass for j in range(1, 7)]
     assert np.allclose(masses, reference_masses, rtol=0.01), (masses, reference_masses)
+
+
+def test_a_study_fingerprint_follows_the_files_a_xacro_robot_includes(arm):
+    """A resumed study must not mix results of an old robot: an included macro counts too."""
+    from vtm_pin.study.cases import load_study
+
+    scenario = arm / "two_link_drop.yaml"
+    scenario.write_text(
+        scenario.read_text() + "stop: {t: 0.1}\nbrakes: {link1_joint: {ideal: true}}\n"
+    )
+    study = arm / "drop_study.yaml"
+    study.write_text("scenario: two_link_drop.yaml\nvary:\n  duration: [0.3, 0.4]\n")
+    before = load_study(study).fingerprint
+    assert load_study(study).fingerprint == before  # the digest is stable
+    part = arm / "parts" / "link.xacro"
+    part.write_text(part.read_text().replace('izz="1e-4"', 'izz="2e-4"'))
+    assert 'izz="2e-4"' in part.read_text()  # the included macro changed, not the robot file
+    assert load_study(study).fingerprint != before

@@ -10,15 +10,11 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from .analysis import EnergyMomentum, compute_energy_momentum
-    from .brakes import BrakeEvent
-    from .dynamics import (
-        compute_bias,
-        compute_energy,
-        compute_forward_dynamics,
-        compute_gravity,
-        compute_M,
-    )
+    from .core.holonomic import FrameConstraint
+    from .core.problem import LockEvent, Problem
+    from .core.results import EventRecord, SimulationResult
+    from .core.simulation import simulate
+    from .core.topology import Topology
     from .exceptions import (
         BrakeError,
         ConstraintError,
@@ -37,20 +33,24 @@ if TYPE_CHECKING:
         VtmError,
         VtmWarning,
     )
-    from .holonomic import FrameConstraint
-    from .integrators import RK4
-    from .problem import LockEvent, Problem
-    from .results import EventRecord, SimulationResult
-    from .robot import Drive, Robot, load_robot
-    from .scenario import Scenario, build_scenario, load_scenario, run_scenario
-    from .simulation import simulate
-    from .topology import Topology
-    from .transitions import TRANSITIONS, TransitionResult
+    from .numerics.dynamics import (
+        compute_bias,
+        compute_energy,
+        compute_forward_dynamics,
+        compute_gravity,
+        compute_M,
+    )
+    from .numerics.integrators import RK4
+    from .numerics.transitions import TRANSITIONS, TransitionResult
+    from .outputs.analysis import EnergyMomentum, compute_energy_momentum
+    from .physics.brakes import BrakeEvent
+    from .physics.robot import Drive, Robot, load_robot
+    from .scene.scenario import Scenario, build_scenario, load_scenario, run_scenario
 
 #: Module that defines each public name.
 _SOURCES = {
-    "analysis": ["EnergyMomentum", "compute_energy_momentum"],
-    "dynamics": [
+    "outputs.analysis": ["EnergyMomentum", "compute_energy_momentum"],
+    "numerics.dynamics": [
         "compute_M",
         "compute_bias",
         "compute_energy",
@@ -75,18 +75,21 @@ _SOURCES = {
         "VtmError",
         "VtmWarning",
     ],
-    "holonomic": ["FrameConstraint"],
-    "integrators": ["RK4"],
-    "robot": ["Drive", "Robot", "load_robot"],
-    "scenario": ["Scenario", "build_scenario", "load_scenario", "run_scenario"],
-    "results": ["EventRecord", "SimulationResult"],
-    "brakes": ["BrakeEvent"],
-    "problem": ["LockEvent", "Problem"],
-    "simulation": ["simulate"],
-    "topology": ["Topology"],
-    "transitions": ["TRANSITIONS", "TransitionResult"],
+    "core.holonomic": ["FrameConstraint"],
+    "numerics.integrators": ["RK4"],
+    "physics.robot": ["Drive", "Robot", "load_robot"],
+    "scene.scenario": ["Scenario", "build_scenario", "load_scenario", "run_scenario"],
+    "core.results": ["EventRecord", "SimulationResult"],
+    "physics.brakes": ["BrakeEvent"],
+    "core.problem": ["LockEvent", "Problem"],
+    "core.simulation": ["simulate"],
+    "core.topology": ["Topology"],
+    "numerics.transitions": ["TRANSITIONS", "TransitionResult"],
 }
 _MODULE_OF = {name: module for module, names in _SOURCES.items() for name in names}
+#: Public submodules under a short name: ``from vtm_pin import pipeline`` (what ``vtm-pin run``
+#: does, as a library call).
+_SUBMODULES = {"pipeline": "outputs.pipeline"}
 
 __all__ = [
     "RK4",
@@ -134,7 +137,9 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    """A public name (or a submodule, ``vtm_pin.scenario``), imported on first use."""
+    """A public name (or a submodule, ``vtm_pin.scene.scenario``), imported on first use."""
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{_SUBMODULES[name]}", __name__)
     module = _MODULE_OF.get(name)
     if module is None:
         try:

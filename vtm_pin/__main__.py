@@ -10,7 +10,7 @@ from __future__ import annotations
 import signal
 import sys
 
-from .interrupts import EXIT_INTERRUPTED, forget_interrupt
+from .files.interrupts import EXIT_INTERRUPTED, forget_interrupt
 
 
 def entry_point() -> int:

@@ -20,17 +20,7 @@ from typing import Any, NoReturn
 import numpy as np
 from tqdm import tqdm
 
-from .calibration import (
-    DISTANCE_SCATTER,
-    FIGURES,
-    TIME_SCATTER,
-    LeftOut,
-    calibrate,
-    check_table,
-    leave_one_out,
-)
-from .calibration_report import calibration_summary, format_calibration, write_calibration
-from .comparison import (
+from .calibration.comparison import (
     CLASSES,
     SHORT_TOLERANCE,
     Comparison,
@@ -40,6 +30,17 @@ from .comparison import (
     shared,
     warning_line,
 )
+from .calibration.fit import (
+    DISTANCE_SCATTER,
+    FIGURES,
+    TIME_SCATTER,
+    LeftOut,
+    calibrate,
+    check_table,
+    leave_one_out,
+)
+from .calibration.report import calibration_summary, format_calibration, write_calibration
+from .calibration.table import read_stopping_table
 from .exceptions import (
     OutputError,
     ScenarioError,
@@ -49,18 +50,17 @@ from .exceptions import (
     VtmWarning,
     excerpt,
 )
-from .inputs import read_yaml
-from .integrators import INTEGRATORS
-from .interrupts import EXIT_INTERRUPTED, forget_interrupt
-from .pipeline import Progress, check_output_folder, find_scenario, run, write_outputs
-from .report import format_figures, format_stopping, format_summary, integrator_settings
-from .robot import ROBOTS_DIR, list_example_robots, list_local_robots, load_robot
-from .scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
+from .files.inputs import read_yaml
+from .files.interrupts import EXIT_INTERRUPTED, forget_interrupt
+from .numerics.integrators import INTEGRATORS
+from .numerics.transitions import TRANSITIONS
+from .outputs.pipeline import Progress, check_output_folder, find_scenario, run, write_outputs
+from .outputs.report import format_figures, format_stopping, format_summary, integrator_settings
+from .physics.robot import ROBOTS_DIR, list_example_robots, list_local_robots, load_robot
+from .scene.scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
 from .shipped import KINDS, init_files, shipped_names
-from .stopping_table import read_stopping_table
-from .study import STUDIES_DIR, Study, find_study, load_study
-from .study_runner import CASES_FOLDER, format_study, run_study
-from .transitions import TRANSITIONS
+from .study.cases import STUDIES_DIR, Study, find_study, load_study
+from .study.runner import CASES_FOLDER, format_study, run_study
 
 #: Exit codes: success, a user error (bad scenario, robot or option value), bad usage of the
 #: command line, interrupted by Ctrl-C. Nothing is written unless the code is EXIT_OK.
@@ -721,7 +721,7 @@ class _ProgressBars:
 
 @contextmanager
 def _progress(scenario: Scenario, show: bool) -> Iterator[Progress]:
-    """A progress callback for :func:`vtm_pin.pipeline.run`; its bars go when the block ends."""
+    """A progress callback for :func:`~vtm_pin.outputs.pipeline.run`; bars go when it ends."""
     bars = _ProgressBars(scenario, show)
     try:
         yield bars

@@ -1,9 +1,11 @@
 """Copies of the shipped scenarios, studies and robot files, to start from (``vtm-pin init``).
 
 A copy must work from its new folder: a study's ``scenario: ../scenarios/x.yaml`` becomes the
-shipped scenario's name (which :func:`vtm_pin.study.load_study` accepts), a scenario's
+shipped scenario's name (which :func:`vtm_pin.study.cases.load_study` accepts), a scenario's
 ``include`` fragments are copied beside it, and a robot comes with its URDF (the shipped one,
-or example-robot-data's for an arm whose data file only is shipped) beside its data file.
+or example-robot-data's for an arm whose data file only is shipped) beside its data file. A
+copy's ``# yaml-language-server: $schema=`` line names the installed schema file by its absolute
+path, so that an editor checks the copy wherever it lives.
 """
 
 from __future__ import annotations
@@ -13,10 +15,11 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from .exceptions import InputError, OutputError, excerpt
-from .inputs import read_text, read_yaml
-from .robot import ROBOTS_DIR, list_example_robots, load_robot
-from .scenario import SCENARIOS_DIR
-from .study import STUDIES_DIR
+from .files.inputs import read_text, read_yaml
+from .physics.robot import ROBOTS_DIR, list_example_robots, load_robot
+from .scene.scenario import SCENARIOS_DIR
+from .schemas import schema_file
+from .study.cases import STUDIES_DIR
 
 #: What ``vtm-pin init`` copies, and the folder each kind is shipped in.
 KINDS: Mapping[str, Path] = {
@@ -89,7 +92,7 @@ def _scenario(name: str) -> dict[str, str]:
         fragment = SCENARIOS_DIR / entry
         fragments[fragment.name] = read_text(fragment, InputError)
         text = text.replace(entry, fragment.name)
-    return {path.name: text, **fragments}
+    return {path.name: _schema_line(text, "scenario"), **fragments}
 
 
 def _study(name: str) -> dict[str, str]:
@@ -100,7 +103,13 @@ def _study(name: str) -> dict[str, str]:
     if base.is_file():
         line = f"scenario: {base.stem}   # shipped (vtm-pin init scenario {base.stem} copies it)"
         text = re.sub(r"^scenario:.*$", line, text, count=1, flags=re.MULTILINE)
-    return {path.name: text}
+    return {path.name: _schema_line(text, "study")}
+
+
+def _schema_line(text: str, kind: str) -> str:
+    """``text`` with its editor schema line naming the installed schema of ``kind``."""
+    line = f"# yaml-language-server: $schema={Path(str(schema_file(kind))).resolve()}"
+    return re.sub(r"^# yaml-language-server: \$schema=.*$", line, text, count=1, flags=re.MULTILINE)
 
 
 def _robot(name: str) -> dict[str, str]:

@@ -1,8 +1,8 @@
 """The JSON Schemas of scenario and study files, shipped as package data and read once.
 
 ``scenario.schema.json`` and ``study.schema.json`` (JSON Schema draft 2020-12) are the single
-source of the rules of those files: :mod:`vtm_pin.scenario` and :mod:`vtm_pin.study` validate
-with them, and editors read them through a file's ``# yaml-language-server: $schema=...``
+source of the rules of those files: :mod:`vtm_pin.scene.scenario` and :mod:`vtm_pin.study.cases`
+validate with them, and editors read them through a file's ``# yaml-language-server: $schema=...``
 comment. Parts used more than once (a drive, a brake, a constraint, a calibration) are
 ``$defs`` of the scenario schema, referred to with ``$ref``; :func:`load_schema` returns the
 schema with every ``$ref`` replaced by its definition, so that the code can walk and cut it

@@ -1,0 +1,1119 @@
+r"""The batched engine: many runs of one robot advanced together, dynamics in one call per stage.
+
+Every run keeps its own hybrid loop (:func:`vtm_pin.core.simulation.hybrid_run`: time events,
+brake decisions, locks and their jumps, results), and so its own time, step size and events.
+Only the integration between events is shared: the intervals that the runs ask for are stepped
+together by one vectorised Dormand-Prince 8(5,3), the same method, step control, event
+location and dense output as :class:`~vtm_pin.numerics.integrators.DOP853`, so a run's steps are the
+scalar engine's up to round-off. Each Runge-Kutta stage evaluates the dynamics of every run
+of one model in at most three batched calls: ``pinocchio.abaInParallel`` for the runs without
+locks, ``pinocchio.rneaInParallel`` twice for those with.
+
+A run whose phase has joints locked is not given a reduced model (that would be one model per
+run and per lock angle). Its free accelerations come from the full model instead: with L the
+locked joints and f the free ones (v_L = 0, a_L = 0),
+
+.. math:: M_{ff}\, a_f = \tau_f - b_f, \qquad \lambda_L = M_{Lf}\, a_f + b_L - \tau_L,
+
+where b = RNEA(q, v, 0) and the free columns M e_j come from one batched RNEA call on the
+model without gravity at zero velocity with a = e_j, over every (run, free joint) pair. That
+is 1 + k RNEA passes (about half an ABA each) for k free joints; in a stop most joints are
+locked, where the k x k solve is small. The multipliers lambda are the locks' holding
+torques, which the brakes' slip events and the results need.
+
+What the batched engine steps: intervals without frame constraints or acting drives, with
+Coulomb or viscous brakes (and ideal locks, which are transitions, not dynamics) and the
+motors' short-circuit braking, integrated by dop853.
+A run that needs anything else (see :func:`fallback_reason`) is run by the scalar engine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+from collections.abc import Callable, Generator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from ..exceptions import SimulationError, StepLimitError, VtmError
+from ..numerics.integrators import DOP853, Segment
+from ..numerics.integrators import dop853_coefficients as coef
+from ..numerics.integrators.dop853 import (
+    _EXPONENT,
+    _MAX_FACTOR,
+    _MIN_FACTOR,
+    _SAFETY,
+    _Grid,
+    dense_weights,
+)
+from ..numerics.integrators.fixed_step import locate
+from ..numerics.transitions.recursive import weightless
+from ..physics.brakes import ROUNDOFF, BrakeMode, StateEventKind
+from ..physics.drives import short_circuit_torque
+from ..physics.friction import Coulomb, Viscous
+from .phase import WORKS
+from .problem import Problem
+from .results import SimulationResult
+from .simulation import SegmentRequest, hybrid_run
+
+ENGINES = ("batched", "scalar")
+#: Where a batch's wall time goes: the Pinocchio calls with the small solves of locked runs,
+#: the runs' hybrid loops (brake decisions, locks, traces), event location on the dense
+#: output, and the rest: the vectorised step control and dense output in NumPy (and the
+#: batch's set-up: its Pinocchio model pools).
+PARTS = ("dynamics", "hybrid", "location", "stepping")
+
+_S = coef.N_STAGES
+_A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
+_A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
+_N_EXTRA = _A_EXTRA.shape[0]
+
+
+def fallback_reason(problem: Problem, integrator: object) -> str | None:
+    """Why a run cannot go through the batched engine; None if it can.
+
+    Args:
+        problem: The run.
+        integrator: Its integrator.
+    """
+    if not isinstance(integrator, DOP853):
+        name = getattr(integrator, "name", type(integrator).__name__)
+        return f"integrator {name} (the batched engine steps dop853 only)"
+    if problem.constraints or any(e.activate for e in problem.events):
+        return "frame constraints"
+    stop = problem.stop
+    if stop is not None and stop.category != 0:
+        return "category-1 stop (drives ramp the rates down)"
+    if stop is not None and stop.t > 0.0:
+        return "drives act before the stop signal (stop.t > 0)"
+    for brake in problem.brakes:
+        if not brake.ideal and type(brake.friction) not in (Coulomb, Viscous):
+            return (
+                f"{brake.friction.name} brake friction (the batched engine has Coulomb and viscous)"
+            )
+    return None
+
+
+def model_key(model: pin.Model) -> bytes:
+    """Bytes equal for two models with the same dynamics (inertias, placements, armature)."""
+    parts = [
+        np.asarray(model.gravity.vector),
+        np.asarray(model.armature),
+        np.asarray(model.parents, dtype=float),
+    ]
+    for joint, placement, inertia in zip(
+        model.joints, model.jointPlacements, model.inertias, strict=True
+    ):
+        parts.append(np.array([joint.idx_v, joint.nv], dtype=float))
+        parts.append(placement.homogeneous.ravel())
+        parts.append(inertia.toDynamicParameters())
+    return b"".join(np.ascontiguousarray(p, dtype=float).tobytes() for p in parts) + b"".join(
+        str(joint).encode() for joint in model.joints
+    )
+
+
+class _Dynamics:
+    """Batched dynamics of one model: ABA, or with locks M_ff a_f = tau_f - b_f; holding torques.
+
+    Args:
+        model: The full model (armature included).
+        threads: Threads of Pinocchio's parallel algorithms.
+    """
+
+    def __init__(self, model: pin.Model, threads: int) -> None:
+        self.n = model.nv
+        self.threads = threads
+        self.pool = pin.ModelPool(model, threads)
+        self.weightless = pin.ModelPool(weightless(model), threads)
+        #: Batched Pinocchio calls made, and the states they evaluated.
+        self.calls = 0
+        self.states = 0
+
+    def _call(
+        self, algorithm: object, pool: pin.ModelPool, q: np.ndarray, v: np.ndarray, x: np.ndarray
+    ) -> np.ndarray:
+        """``pin.abaInParallel`` or ``pin.rneaInParallel`` on rows of states."""
+        self.calls += 1
+        self.states += len(q)
+        out = algorithm(self.threads, pool, q.T, v.T, x.T)  # type: ignore[operator]
+        return np.asarray(out).reshape(self.n, len(q)).T
+
+    def accelerations(
+        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, locked: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Accelerations [rad/s^2] (0 at locked joints) and holding torques [N m] (0 at free).
+
+        Args:
+            q: Configurations, shape (B, n).
+            v: Rates, shape (B, n), exactly 0 at locked joints.
+            tau: Applied torques, shape (B, n), 0 at locked joints.
+            locked: Lock masks, shape (B, n).
+        """
+        a = np.zeros_like(q)
+        lam = np.zeros_like(q)
+        held = locked.any(axis=1)
+        rows = np.flatnonzero(~held)
+        if rows.size:
+            a[rows] = self._call(pin.abaInParallel, self.pool, q[rows], v[rows], tau[rows])
+        rows = np.flatnonzero(held)
+        if rows.size:
+            a[rows], lam[rows] = self._locked(q[rows], v[rows], tau[rows], locked[rows])
+        return a, lam
+
+    def _locked(
+        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, locked: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`accelerations` of states with locks, from M's free columns and b by RNEA."""
+        n = self.n
+        free = ~locked
+        b = self._call(pin.rneaInParallel, self.pool, q, v, np.zeros_like(q))
+        lane, joint = np.nonzero(free)  # one weightless RNEA per (state, free joint), one call
+        unit = np.zeros((lane.size, n))
+        unit[np.arange(lane.size), joint] = 1.0
+        columns = np.zeros((len(q), n, n))  # columns[r, :, j] = M e_j where j is free
+        columns[lane, :, joint] = self._call(
+            pin.rneaInParallel, self.weightless, q[lane], unit * 0.0, unit
+        )
+        both = free[:, :, None] & free[:, None, :]
+        system = np.where(both, columns, 0.0) + locked[:, :, None] * np.eye(n)
+        a = _solve_each(system, np.where(free, tau - b, 0.0))
+        a[locked] = 0.0
+        lam = np.einsum("rij,rj->ri", columns, a) + b - tau
+        lam[free] = 0.0
+        return a, lam
+
+
+def _solve_each(A: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """The solutions of A[r] x[r] = rhs[r], row by row; NaN where A[r] is singular.
+
+    A singular M_ff then fails that run alone (its derivatives are not finite), as the
+    scalar engine's ABA would, instead of the whole batch.
+    """
+    try:
+        return np.linalg.solve(A, rhs[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        x = np.full_like(rhs, np.nan)
+        for r in range(len(A)):
+            try:
+                x[r] = np.linalg.solve(A[r], rhs[r])
+            except np.linalg.LinAlgError:
+                continue
+        return x
+
+
+@dataclass
+class _Lanes:
+    """The runs' current intervals, one row (lane) per run, in the padded state layout.
+
+    The padded state of a run with n joints is (q, v, W_brake, W_drive, W_short, P_brake),
+    3n + 3 values; a locked joint keeps its q and v = 0 with zero rates. Which entries are the
+    interval's own (the scalar engine's y) is ``active``; the error norms use those only.
+    """
+
+    n: int
+    size: int
+
+    def __post_init__(self) -> None:
+        n, b, ny = self.n, self.size, 3 * self.n + WORKS
+        self.ny = ny
+        self.y = np.zeros((b, ny))
+        self.fy = np.zeros((b, ny))
+        self.lam = np.zeros((b, n))
+        self.t = np.zeros(b)
+        self.t1 = np.zeros(b)
+        self.h = np.zeros(b)
+        self.rejected = np.zeros(b, dtype=bool)
+        self.locked = np.zeros((b, n), dtype=bool)
+        self.sign = np.zeros((b, n))
+        self.ratio = np.ones((b, n))
+        self.torque = np.zeros((b, n))  # motor side sliding torque [N m]
+        self.viscous = np.zeros((b, n))  # 1 / viscous velocity [s/rad], 0: Coulomb
+        self.short_torque = np.zeros((b, n))  # short-circuit peak torque where shorted [N m]
+        self.short_speed = np.ones((b, n))  # its motor speed [rad/s]
+        self.breakaway = np.zeros((b, n))  # motor side static torque [N m]
+        self.ramp = np.zeros((b, n))
+        self.engaged = np.zeros((b, n))
+        self.event_kind = np.zeros((b, n), dtype=np.int8)  # 0 none, 1 rest, 2 slip
+        self.event_dir = np.zeros((b, n))
+        self.event_index = np.zeros((b, n), dtype=int)
+        self.g_prev = np.zeros((b, n))
+        self.active = np.zeros((b, ny), dtype=bool)
+        self.count = np.ones(b)
+        self.steps = np.zeros(b, dtype=int)
+        self.accepted = np.zeros(b, dtype=int)
+        self.evals = np.zeros(b, dtype=int)
+        self.running = np.zeros(b, dtype=bool)
+
+
+class _Run:
+    """One run's hybrid loop and the interval it is waiting for."""
+
+    def __init__(self, index: int, problem: Problem, integrator: DOP853, transition: str) -> None:
+        self.index = index
+        self.transition = transition
+        self.loop: Generator[SegmentRequest, Segment, SimulationResult] = hybrid_run(
+            problem, integrator, transition=transition, reduced_models=False
+        )
+        self.request: SegmentRequest | None = None
+        self.outcome: SimulationResult | VtmError | None = None
+        self.grid: _Grid | None = None
+        self.ts: list[np.ndarray] = []
+        self.ys: list[np.ndarray] = []
+        self.holds: list[np.ndarray] = []
+        self.reduced = np.zeros(0, dtype=int)
+
+    def advance(self, segment: Segment | None = None, error: VtmError | None = None) -> None:
+        """Send the loop its segment (or error); keep its next request or its outcome."""
+        try:
+            if error is not None:
+                self.request = self.loop.throw(error)
+            elif segment is None:
+                self.request = next(self.loop)
+            else:
+                self.request = self.loop.send(segment)
+        except StopIteration as done:
+            self.request, self.outcome = None, done.value
+        except VtmError as exc:
+            self.request, self.outcome = None, exc
+        except Exception as exc:  # a bug: this run fails with it, the others go on
+            message = f"internal error ({type(exc).__name__}: {exc})"
+            self.request, self.outcome = None, SimulationError(message)
+
+
+class BatchEngine:
+    """Runs of one model stepped together (see the module docstring).
+
+    Args:
+        model: The runs' full model (all runs share its dynamics: :func:`model_key`).
+        integrator: The dop853 settings every run uses.
+        threads: Threads of Pinocchio's parallel algorithms.
+    """
+
+    def __init__(self, model: pin.Model, integrator: DOP853, threads: int = 1) -> None:
+        self.dynamics = _Dynamics(model, threads)
+        self.integrator = integrator
+        #: Called with each run as soon as it has its outcome (see :func:`run_many`).
+        self.finished: Callable[[_Run], None] | None = None
+        self.n = model.nv
+        #: Wall time [s] in the dynamics (Pinocchio calls and the solves of locked runs), the runs'
+        #: hybrid loops (brake decisions, locks, traces) and event location.
+        self.seconds = dict.fromkeys(PARTS[:3], 0.0)
+
+    # The right-hand side of every lane in ``rows`` at times t and padded states y.
+
+    def rhs(
+        self, lanes: _Lanes, rows: np.ndarray, t: np.ndarray, y: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """dy/dt (padded) and holding torques [N m] of lanes ``rows`` at (t, y)."""
+        n = self.n
+        start = time.perf_counter()
+        q, v = y[:, :n], y[:, n : 2 * n]
+        ratio = lanes.ratio[rows]
+        factor = _ramp_factor(lanes, rows, t)
+        motor = ratio * v  # motor speeds [rad/s]
+        sign = lanes.sign[rows]
+        slip = np.maximum(sign * motor, 0.0)  # [rad/s] motor side, as Viscous.kinetic
+        kinetic = lanes.torque[rows] * (1.0 + slip * lanes.viscous[rows])
+        tau = -sign * (ratio * (factor * kinetic))
+        tau_short = short_circuit_torque(
+            ratio, lanes.short_torque[rows], lanes.short_speed[rows], v
+        )
+        a, lam = self.dynamics.accelerations(q, v, tau + tau_short, lanes.locked[rows])
+        out = np.zeros_like(y)
+        out[:, :n] = v
+        out[:, n : 2 * n] = a
+        out[:, 2 * n] = -np.einsum("bi,bi->b", tau, v)
+        out[:, 2 * n + 2] = -np.einsum("bi,bi->b", tau_short, v)
+        out[:, 2 * n + WORKS :] = tau
+        self.seconds["dynamics"] += time.perf_counter() - start
+        return out, lam
+
+    def run(self, runs: Sequence[_Run]) -> None:
+        """Drive ``runs`` (each already started: waiting with a request) to their outcomes."""
+        lanes = _Lanes(self.n, len(runs))
+        waiting = list(range(len(runs)))
+        while True:
+            self._start(lanes, runs, waiting)
+            rows = np.flatnonzero(lanes.running)
+            if rows.size == 0:
+                return
+            waiting = self._round(lanes, runs, rows)
+
+    # Starting intervals.
+
+    def _start(self, lanes: _Lanes, runs: Sequence[_Run], waiting: list[int]) -> None:
+        """Give every waiting run's request a lane (or answer it at once), then first steps."""
+        fresh: list[int] = []
+        while waiting:
+            again = []
+            for b in waiting:
+                run = runs[b]
+                if run.request is None:
+                    continue
+                request = run.request
+                if request.phase.k == 0 or request.t1 <= request.t0:  # the scalar is instant
+                    try:
+                        segment = request.integrate()
+                    except Exception as exc:
+                        self.advance(run, error=_as_vtm_error(exc))
+                    else:
+                        self.advance(run, segment)
+                    again.append(b)
+                    continue
+                self._load(lanes, b, run)
+                fresh.append(b)
+            waiting = again
+        if not fresh:
+            return
+        rows = np.array(fresh)
+        fy, lam = self.rhs(lanes, rows, lanes.t[rows], lanes.y[rows])
+        lanes.fy[rows], lanes.lam[rows] = fy, lam
+        lanes.h[rows] = self._first_step(lanes, rows)
+        lanes.evals[rows] = 2
+        lanes.g_prev[rows] = self._g(lanes, rows, lanes.t[rows], lanes.y[rows], lam)
+        for b in fresh:  # slip margins as the phase's own events have them (>= 0 after a stick)
+            self._own_margins(lanes, runs[b], b, lanes.t[b], lanes.y[b], lanes.g_prev[b], None)
+        for b in fresh:  # the interval's first sample
+            runs[b].ts.append(lanes.t[b : b + 1].copy())
+            runs[b].ys.append(lanes.y[b : b + 1].copy())
+            runs[b].holds.append(lanes.lam[b : b + 1].copy())
+
+    def _load(self, lanes: _Lanes, b: int, run: _Run) -> None:
+        """Write run ``b``'s request into its lane."""
+        request = run.request
+        assert request is not None
+        phase = request.phase
+        n, k = self.n, phase.k
+        topology = phase.topology
+        free = topology.free
+        locked = np.array(topology.locked, dtype=int)
+        y = np.zeros(3 * n + WORKS)
+        y[free] = request.y0[:k]
+        y[locked] = topology.q_locked
+        y[n + free] = request.y0[k : 2 * k]
+        extras = np.arange(2 * n, 3 * n + WORKS)
+        reduced = [free, n + free] if phase.passive else [free, n + free, extras]
+        if not phase.passive:
+            y[extras] = request.y0[2 * k :]
+        run.reduced = np.concatenate(reduced)
+        lanes.y[b] = y
+        lanes.t[b], lanes.t1[b] = request.t0, request.t1
+        lanes.rejected[b] = False
+        lanes.locked[b] = False
+        lanes.locked[b, locked] = True
+        lanes.active[b] = False
+        lanes.active[b, run.reduced] = True
+        lanes.count[b] = run.reduced.size
+        lanes.steps[b] = lanes.accepted[b] = 0
+        self._load_brakes(lanes, b, phase)
+        lanes.running[b] = True
+        run.grid = (
+            None
+            if request.integrator.output_dt is None  # type: ignore[attr-defined]
+            else _Grid(request.integrator.output_dt, request.t0, request.t1)  # type: ignore[attr-defined]
+        )
+        run.ts, run.ys, run.holds = [], [], []
+
+    def _load_brakes(self, lanes: _Lanes, b: int, phase: object) -> None:
+        """Sliding signs, torques, ramps and the state events of run ``b``'s phase."""
+        lanes.sign[b] = 0.0
+        lanes.event_kind[b] = 0
+        lanes.short_torque[b], lanes.short_speed[b] = phase.shorted()  # type: ignore[attr-defined]
+        lanes.ratio[b] = phase.robot.gear_ratio  # type: ignore[attr-defined]
+        machine = phase.machine  # type: ignore[attr-defined]
+        if machine is None:
+            return
+        modes, engaged = phase.modes, phase.engaged  # type: ignore[attr-defined]
+        for j, brake in machine.brakes.items():
+            lanes.engaged[b, j] = engaged.get(j, 0.0)
+            if not brake.ideal:
+                friction = brake.friction
+                lanes.torque[b, j] = friction.sliding_torque
+                lanes.breakaway[b, j] = friction.breakaway_torque
+                lanes.ramp[b, j] = friction.ramp
+                lanes.viscous[b, j] = 1.0 / getattr(friction, "viscous_velocity", math.inf)
+            if modes[j].sliding and not lanes.locked[b, j]:
+                lanes.sign[b, j] = modes[j].sign
+        for index, event in enumerate(phase.events):  # type: ignore[attr-defined]
+            j = event.joint
+            lanes.event_index[b, j] = index
+            lanes.event_dir[b, j] = event.event.direction
+            rest = event.kind is StateEventKind.ZERO_VELOCITY
+            lanes.event_kind[b, j] = 1 if rest else 2
+            if not rest:
+                assert modes[j] is BrakeMode.STUCK
+
+    def _first_step(self, lanes: _Lanes, rows: np.ndarray) -> np.ndarray:
+        """Hairer's initial step guess per lane, as DOP853's (one more evaluation)."""
+        it = self.integrator
+        y, fy, active = lanes.y[rows], lanes.fy[rows], lanes.active[rows]
+        span = lanes.t1[rows] - lanes.t[rows]
+        scale = it.atol + it.rtol * np.abs(y)
+        d0 = _rms(y / scale, active)
+        d1 = _rms(fy / scale, active)
+        h0 = np.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / np.where(d1 == 0, 1, d1))
+        h0 = np.minimum(h0, span)
+        f1, _ = self.rhs(lanes, rows, lanes.t[rows] + h0, y + h0[:, None] * fy)
+        d2 = _rms((f1 - fy) / scale, active) / h0
+        small = (d1 <= 1e-15) & (d2 <= 1e-15)
+        with np.errstate(divide="ignore"):
+            h1 = np.where(
+                small, np.maximum(1e-6, h0 * 1e-3), (0.01 / np.maximum(d1, d2)) ** (1.0 / 8.0)
+            )
+        return np.minimum(np.minimum(np.minimum(100.0 * h0, h1), span), it.max_step)
+
+    def _g(
+        self, lanes: _Lanes, rows: np.ndarray, t: np.ndarray, y: np.ndarray, lam: np.ndarray
+    ) -> np.ndarray:
+        """The state-event functions of lanes ``rows`` (NaN where a joint has none)."""
+        n = self.n
+        kind = lanes.event_kind[rows]
+        static = lanes.ratio[rows] * (_ramp_factor(lanes, rows, t) * lanes.breakaway[rows])
+        scale = np.maximum(1.0, np.max(np.abs(lam), axis=1))
+        margin = static + ROUNDOFF * scale[:, None] - np.abs(lam)
+        g = np.where(kind == 1, y[:, n : 2 * n], margin)
+        return np.where(kind == 0, np.nan, g)
+
+    # One step attempt of every running lane.
+
+    def _stages(
+        self, lanes: _Lanes, rows: np.ndarray, h: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The 12 stages: K, y_new, f_new, holding torques at y_new."""
+        t, y = lanes.t[rows], lanes.y[rows]
+        K = np.empty((_S + 1 + _N_EXTRA, rows.size, lanes.ny))
+        K[0] = lanes.fy[rows]
+        for s in range(1, _S):
+            dy = np.tensordot(_A[s, :s], K[:s], axes=(0, 0))
+            K[s], _ = self.rhs(lanes, rows, t + _C[s] * h, y + h[:, None] * dy)
+        y_new = y + h[:, None] * np.tensordot(_B, K[:_S], axes=(0, 0))
+        f_new, lam = self.rhs(lanes, rows, t + h, y_new)
+        K[_S] = f_new
+        return K, y_new, f_new, lam
+
+    def _error(
+        self, lanes: _Lanes, rows: np.ndarray, K: np.ndarray, y_new: np.ndarray, h: np.ndarray
+    ) -> np.ndarray:
+        """DOP853's scaled error norm per lane, over the interval's own entries."""
+        it = self.integrator
+        y, active = lanes.y[rows], lanes.active[rows]
+        scale = it.atol + it.rtol * np.maximum(np.abs(y), np.abs(y_new))
+        err5 = np.where(active, np.tensordot(coef.E5, K[: _S + 1], axes=(0, 0)) / scale, 0.0)
+        err3 = np.where(active, np.tensordot(coef.E3, K[: _S + 1], axes=(0, 0)) / scale, 0.0)
+        e5 = np.einsum("bi,bi->b", err5, err5)
+        e3 = np.einsum("bi,bi->b", err3, err3)
+        both = (e5 == 0.0) & (e3 == 0.0)
+        denominator = np.sqrt(np.where(both, 1.0, (e5 + 0.01 * e3) * lanes.count[rows]))
+        return np.where(both, 0.0, np.abs(h) * e5 / denominator)
+
+    def _round(self, lanes: _Lanes, runs: Sequence[_Run], rows: np.ndarray) -> list[int]:
+        """One step attempt of every running lane; returns the runs whose interval ended."""
+        it = self.integrator
+        lanes.steps[rows] += 1
+        finished: list[int] = []
+        over = rows[lanes.steps[rows] > it.max_steps]
+        for b in over:
+            self._fail(lanes, runs, b, self._step_limit(lanes, b), finished)
+        rows = rows[lanes.steps[rows] <= it.max_steps]
+        t, t1 = lanes.t[rows], lanes.t1[rows]
+        h = np.minimum(lanes.h[rows], it.max_step)
+        last = t + h >= t1 - 1e-14 * np.maximum(1.0, np.abs(t1))
+        h = np.where(last, t1 - t, h)
+        K, y_new, f_new, lam_new = self._stages(lanes, rows, h)
+        lanes.evals[rows] += _S
+        err = self._error(lanes, rows, K, y_new, h)
+        bad = ~(err <= 1.0)
+        if bad.any():
+            self._reject(lanes, runs, rows[bad], h[bad], err[bad], finished)
+        good = ~bad
+        if good.any():
+            self._accept(
+                lanes,
+                runs,
+                rows[good],
+                _Step(h[good], last[good], err[good], K[:, good], y_new[good], f_new[good]),
+                lam_new[good],
+                finished,
+            )
+        return finished
+
+    def _reject(
+        self,
+        lanes: _Lanes,
+        runs: Sequence[_Run],
+        rows: np.ndarray,
+        h: np.ndarray,
+        err: np.ndarray,
+        finished: list[int],
+    ) -> None:
+        """Shrink rejected lanes' steps; a step below the round-off of t fails the run."""
+        finite = np.isfinite(err)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            factor = np.where(
+                finite, np.maximum(_MIN_FACTOR, _SAFETY * err**_EXPONENT), _MIN_FACTOR
+            )
+        h = h * factor
+        lanes.h[rows] = h
+        lanes.rejected[rows] = True
+        t = lanes.t[rows]
+        tiny = h < 10.0 * np.abs(np.nextafter(t, math.inf) - t)
+        for b, hb in zip(rows[tiny], h[tiny], strict=True):
+            it = self.integrator
+            finite_f = bool(np.all(np.isfinite(lanes.fy[b])))
+            reason = (
+                "the derivatives are not finite there"
+                if not finite_f
+                else f"rtol = {it.rtol:g}, atol = {it.atol:g} cannot be met there"
+            )
+            error = SimulationError(
+                f"dop853: the step fell to {hb:.3g} s at t = {lanes.t[b]:.6g} s, below the "
+                f"round-off of t; {reason} (a singular or extremely stiff motion)"
+            )
+            self._fail(lanes, runs, int(b), error, finished)
+
+    def _accept(
+        self,
+        lanes: _Lanes,
+        runs: Sequence[_Run],
+        rows: np.ndarray,
+        step: _Step,
+        lam_new: np.ndarray,
+        finished: list[int],
+    ) -> None:
+        """Accepted steps: events, dense output, the next step size, ended intervals."""
+        lanes.accepted[rows] += 1
+        t = lanes.t[rows]
+        t_new = np.where(step.last, lanes.t1[rows], t + step.h)
+        g_new = self._g(lanes, rows, t_new, step.y_new, lam_new)
+        fired = _crossed(lanes.g_prev[rows], g_new, lanes.event_dir[rows])
+        fired &= lanes.event_kind[rows] != 0
+        slips = fired & (lanes.event_kind[rows] == 2)
+        for i in np.flatnonzero(slips.any(axis=1)):  # confirmed by the phase's own events
+            b = int(rows[i])
+            self._own_margins(lanes, runs[b], b, t_new[i], step.y_new[i], g_new[i], fired[i])
+        events: np.ndarray = np.asarray(fired.any(axis=1))
+        due = np.array(
+            [
+                not event and _due(runs[b].grid, tn)
+                for b, tn, event in zip(rows, t_new, events.tolist(), strict=True)
+            ],
+            dtype=bool,
+        )
+        if events.any() or due.any():
+            self._dense_samples(lanes, runs, rows, step, t_new, fired, events | due)
+        for b in rows[events]:
+            lanes.running[b] = False
+            finished.append(int(b))
+        go = ~events
+        rows, step, t_new = rows[go], step.select(go), t_new[go]
+        lanes.g_prev[rows] = g_new[go]
+        err = step.err
+        with np.errstate(divide="ignore"):
+            factor = np.where(
+                err == 0.0, _MAX_FACTOR, np.minimum(_MAX_FACTOR, _SAFETY * err**_EXPONENT)
+            )
+        factor = np.where(lanes.rejected[rows], np.minimum(1.0, factor), factor)
+        lanes.rejected[rows] = False
+        lanes.t[rows], lanes.y[rows], lanes.fy[rows] = t_new, step.y_new, step.f_new
+        lanes.lam[rows] = lam_new[go]
+        lanes.h[rows] = step.h * factor
+        gridless = np.array([runs[b].grid is None for b in rows], dtype=bool)
+        for i in np.flatnonzero(step.last | gridless):
+            b = int(rows[i])
+            run = runs[b]
+            run.ts.append(lanes.t[b : b + 1].copy())
+            run.ys.append(lanes.y[b : b + 1].copy())
+            run.holds.append(lanes.lam[b : b + 1].copy())
+            if step.last[i]:
+                lanes.running[b] = False
+                self._finish(lanes, run, b, None)
+                finished.append(b)
+
+    def _dense_samples(
+        self,
+        lanes: _Lanes,
+        runs: Sequence[_Run],
+        rows: np.ndarray,
+        step: _Step,
+        t_new: np.ndarray,
+        fired: np.ndarray,
+        dense: np.ndarray,
+    ) -> None:
+        """Dense output of the ``dense`` lanes: event location, output times (batched).
+
+        A lane whose step fired a state event gets its earliest event located on the
+        step's continuous extension (as :class:`DOP853` does, with the phase's own event
+        functions), its output times up to it, and the event state; its interval ends.
+        """
+        sub, fired, t_new = rows[dense], fired[dense], t_new[dense]
+        lanes.evals[sub] += _N_EXTRA
+        part = step.select(dense)
+        F = self._dense_coefficients(lanes, sub, part)
+        owners: list[int] = []
+        times: list[float] = []
+        ends: dict[int, int] = {}
+        for i, b in enumerate(sub):
+            run = runs[int(b)]
+            t = float(lanes.t[b])
+            if fired[i].any():
+                try:
+                    tau, index = self._locate(lanes, run, int(b), F[i], float(part.h[i]), fired[i])
+                except Exception as exc:
+                    self.advance(run, error=_as_vtm_error(exc))
+                    continue
+                until = t + tau - (run.grid.slack if run.grid is not None else 0.0)
+                count = _grid_times(run.grid, until, times)
+                times.append(t + tau)
+                owners.extend([i] * (count + 1))
+                ends[int(b)] = index
+            else:
+                owners.extend([i] * _grid_times(run.grid, float(t_new[i]), times))
+        if owners:
+            self._store_samples(lanes, runs, sub, part, F, np.array(owners, dtype=int), times)
+        for b, event in ends.items():
+            self._finish(lanes, runs[b], b, event)
+
+    def _store_samples(
+        self,
+        lanes: _Lanes,
+        runs: Sequence[_Run],
+        sub: np.ndarray,
+        part: _Step,
+        F: np.ndarray,
+        owner: np.ndarray,
+        times: list[float],
+    ) -> None:
+        """The dense output at ``times`` [s] (of lanes ``sub[owner]``), with holding torques."""
+        when = np.array(times)
+        x = (when - lanes.t[sub][owner]) / part.h[owner]
+        y = _horner(F[owner], x, lanes.y[sub][owner])
+        _, lam = self.rhs(lanes, sub[owner], when, y)
+        split = np.flatnonzero(np.diff(owner)) + 1
+        starts = np.concatenate([[0], split]).astype(int)
+        for t_part, y_part, l_part, first in zip(
+            np.split(when, split), np.split(y, split), np.split(lam, split), starts, strict=True
+        ):
+            run = runs[int(sub[owner[first]])]
+            run.ts.append(t_part)
+            run.ys.append(y_part)
+            run.holds.append(l_part)
+
+    def _own_margins(
+        self,
+        lanes: _Lanes,
+        run: _Run,
+        b: int,
+        t: float,
+        y: np.ndarray,
+        g: np.ndarray,
+        fired: np.ndarray | None,
+    ) -> None:
+        """Run ``b``'s slip margins at (t, y) from its phase's own event functions.
+
+        They replace the batched values in ``g``; with ``fired``, a slip counts as fired only
+        if the phase's own margin crossed too (the two agree to round-off, and the phase's
+        events are what the event location uses).
+        """
+        request = run.request
+        assert request is not None
+        joints = np.flatnonzero(lanes.event_kind[b] == 2)
+        if fired is not None:
+            joints = joints[fired[joints]]
+        if joints.size == 0:
+            return
+        events = request.phase.events
+        own = y[run.reduced]
+        for j in joints:
+            event = events[int(lanes.event_index[b, j])].event
+            g[j] = event.g(float(t), own)
+            if fired is not None:
+                fired[j] = event.crossed(float(lanes.g_prev[b, j]), float(g[j]))
+
+    def _locate(
+        self, lanes: _Lanes, run: _Run, b: int, F: np.ndarray, h: float, fired: np.ndarray
+    ) -> tuple[float, int]:
+        """The earliest state event in run ``b``'s step: (offset [s], event index)."""
+        request = run.request
+        assert request is not None
+        reduced = run.reduced
+        y, Fr = lanes.y[b, reduced], np.ascontiguousarray(F[:, reduced])
+
+        def dense(tau: float) -> np.ndarray:  # DOP853's continuous extension, as it has it
+            return y + dense_weights(tau / h).dot(Fr)
+
+        events = [e.event for e in request.phase.events]
+        indices = sorted(int(lanes.event_index[b, j]) for j in np.flatnonzero(fired))
+        begin = time.perf_counter()
+        found = locate(events, indices, float(lanes.t[b]), y, dense, h, self.integrator.event_tol)
+        self.seconds["location"] += time.perf_counter() - begin
+        return found
+
+    def _dense_coefficients(self, lanes: _Lanes, rows: np.ndarray, step: _Step) -> np.ndarray:
+        """The 7th-order continuous extensions' coefficients F, shape (B, 7, ny)."""
+        K, h = step.K, step.h
+        t, y = lanes.t[rows], lanes.y[rows]
+        for s, (a, c) in enumerate(zip(_A_EXTRA, _C_EXTRA, strict=True), start=_S + 1):
+            dy = np.tensordot(a[:s], K[:s], axes=(0, 0))
+            K[s], _ = self.rhs(lanes, rows, t + c * h, y + h[:, None] * dy)
+        delta = step.y_new - y
+        F = np.empty((rows.size, coef.INTERPOLATOR_POWER, lanes.ny))
+        F[:, 0] = delta
+        F[:, 1] = h[:, None] * K[0] - delta
+        F[:, 2] = 2.0 * delta - h[:, None] * (step.f_new + K[0])
+        F[:, 3:] = h[:, None, None] * np.einsum("sk,kbi->bsi", coef.D, K)
+        return F
+
+    def _finish(self, lanes: _Lanes, run: _Run, b: int, event: int | None) -> None:
+        """Hand run ``b`` its segment (reduced layout) and take its next request."""
+        y = np.concatenate(run.ys)
+        hold = np.concatenate(run.holds)
+        locked = lanes.locked[b]
+        hold[:, ~locked] = np.nan
+        segment = Segment(
+            t=np.concatenate(run.ts),
+            y=y[:, run.reduced],
+            rhs_evals=int(lanes.evals[b]),
+            event=event,
+            n_steps=int(lanes.accepted[b]),
+            holding=hold,
+        )
+        run.ts, run.ys, run.holds = [], [], []
+        self.advance(run, segment)
+
+    def advance(
+        self, run: _Run, segment: Segment | None = None, error: VtmError | None = None
+    ) -> None:
+        """Hand a run its segment (or error), timing its hybrid loop."""
+        begin = time.perf_counter()
+        run.advance(segment, error)
+        self.seconds["hybrid"] += time.perf_counter() - begin
+        if run.outcome is not None and self.finished is not None:
+            try:
+                self.finished(run)
+            except Exception as exc:  # not the engine's failure: it must not fall back
+                raise _Finished(exc) from exc
+
+    def _fail(
+        self, lanes: _Lanes, runs: Sequence[_Run], b: int, error: VtmError, finished: list[int]
+    ) -> None:
+        lanes.running[b] = False
+        self.advance(runs[b], error=error)
+        finished.append(int(b))
+
+    def _step_limit(self, lanes: _Lanes, b: int) -> StepLimitError:
+        it = self.integrator
+        return StepLimitError(
+            f"dop853 took {it.max_steps} steps and reached only t = {lanes.t[b]:.6g} s of "
+            f"{lanes.t1[b]:g} s; the limit is {it.max_steps}: set integrator.max_steps, or "
+            "loosen rtol / atol",
+            it.max_steps + 1,
+            it.max_steps,
+        )
+
+
+@dataclass
+class _Step:
+    """The accepted step of some lanes: sizes, whether last, errors, stages, new states."""
+
+    h: np.ndarray
+    last: np.ndarray
+    err: np.ndarray
+    K: np.ndarray
+    y_new: np.ndarray
+    f_new: np.ndarray
+
+    def select(self, mask: np.ndarray) -> _Step:
+        return _Step(
+            self.h[mask],
+            self.last[mask],
+            self.err[mask],
+            self.K[:, mask],
+            self.y_new[mask],
+            self.f_new[mask],
+        )
+
+
+def _ramp_factor(lanes: _Lanes, rows: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The brakes' normal-force ramp at times t [s]: 0 to 1 over ``ramp`` after engaging."""
+    elapsed = t[:, None] - lanes.engaged[rows]
+    ramp = lanes.ramp[rows]
+    return np.where(ramp == 0.0, 1.0, np.clip(elapsed / np.where(ramp == 0.0, 1.0, ramp), 0.0, 1.0))
+
+
+def _crossed(g0: np.ndarray, g1: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """:meth:`StateEvent.crossed`, elementwise (NaN never crosses)."""
+    with np.errstate(invalid="ignore"):
+        up = (direction >= 0) & (g0 < 0.0) & (0.0 <= g1)
+        down = (direction <= 0) & (g0 > 0.0) & (0.0 >= g1)
+        back = (g0 == 0.0) & (direction * g1 > 0.0)
+    return up | down | back
+
+
+def _horner(F: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """DOP853's dense output y + sum F_i x^.. (1 - x)^.., rows of F at offsets x = tau / h."""
+    out = np.zeros_like(y)
+    for i, row in enumerate(F[:, ::-1].transpose(1, 0, 2)):
+        out += row
+        out *= x[:, None] if i % 2 == 0 else (1.0 - x)[:, None]
+    return y + out
+
+
+def _rms(x: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """Root mean square of each row over its active entries."""
+    return np.sqrt(
+        np.einsum("bi,bi->b", np.where(active, x, 0.0), np.where(active, x, 0.0))
+    ) / np.sqrt(active.sum(axis=1))
+
+
+@dataclass(frozen=True)
+class BatchOutcome:
+    """The outcome of many runs.
+
+    Attributes:
+        results: Per run, its result, or the error that ended it.
+        engines: Per run, ``batched`` or ``scalar``.
+        fallbacks: Per run, why it went to the scalar engine (None if batched).
+        seconds: Wall time [s]: ``total``, and the batched engine's split (:data:`PARTS`).
+        shares: Per batched run, its share of its batch's split [s]; None if scalar.
+        calls: Batched Pinocchio calls (ABA, RNEA) made.
+        states: States they evaluated.
+    """
+
+    results: tuple[SimulationResult | VtmError, ...]
+    engines: tuple[str, ...]
+    fallbacks: tuple[str | None, ...]
+    seconds: dict[str, float]
+    shares: tuple[dict[str, float] | None, ...]
+    calls: int
+    states: int
+
+
+class _Finished(BaseException):
+    """An error of a run's ``on_done`` call, carried through the engine's own handlers."""
+
+    def __init__(self, error: Exception) -> None:
+        super().__init__(error)
+        self.error = error
+
+
+#: Called with (run index, its result or error, why it went to the scalar engine or None, its
+#: share of its batch's split so far [s] or None) as soon as a run of :func:`run_many` ends.
+OnDone = Callable[
+    [int, "SimulationResult | VtmError", "str | None", "dict[str, float] | None"], None
+]
+
+
+def run_many(
+    problems: Sequence[Problem],
+    integrators: Sequence[object],
+    *,
+    transition: str = "kkt",
+    engine: str = "batched",
+    threads: int = 1,
+    on_done: OnDone | None = None,
+) -> BatchOutcome:
+    """Run many problems; the batched engine takes those it can (see :func:`fallback_reason`).
+
+    Runs whose models have the same dynamics (:func:`model_key`) and the same integrator
+    settings advance together. A run's ``wall_time`` is its share of its batch's time.
+
+    Args:
+        problems: The runs.
+        integrators: Each run's integrator.
+        transition: Transition rule of every run.
+        engine: ``batched``, or ``scalar`` for one :func:`~vtm_pin.core.simulation.simulate` per
+            run.
+        threads: Threads of Pinocchio's parallel algorithms.
+        on_done: Called as soon as each run ends (in the order they end), so that a caller
+            can keep its finished runs if it is interrupted. A batched run's result then has
+            as its ``wall_time`` the batch's time since the batch's previous run ended (these
+            add up to the batch's time); the outcome returned at the end has equal shares of
+            it. An error it raises ends the call.
+
+    Raises:
+        SimulationError: An unknown engine.
+    """
+    if engine not in ENGINES:
+        raise SimulationError(f"Unknown engine '{engine}'; allowed: {', '.join(ENGINES)}")
+    begin = time.perf_counter()
+    results: list[SimulationResult | VtmError | None] = [None] * len(problems)
+    reasons = [
+        "engine scalar chosen" if engine == "scalar" else fallback_reason(p, i)
+        for p, i in zip(problems, integrators, strict=True)
+    ]
+    groups: dict[tuple[bytes, object], list[int]] = {}
+    for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
+        if reason is None:
+            key = (model_key(problem.robot.model), integrators[index])
+            groups.setdefault(key, []).append(index)
+            continue
+        results[index] = _simulate_one(problem, integrators[index], transition)
+        if on_done is not None:
+            on_done(index, results[index], reason, None)  # type: ignore[arg-type]
+    seconds = dict.fromkeys(PARTS, 0.0)
+    shares: list[dict[str, float] | None] = [None] * len(problems)
+    calls = states = 0
+    for (_, integrator), indices in groups.items():
+        started = time.perf_counter()
+        runs = [
+            _Run(i, problems[i], integrator, transition)  # type: ignore[arg-type]
+            for i in indices
+        ]
+        batch = BatchEngine(problems[indices[0]].robot.model, integrator, threads)  # type: ignore[arg-type]
+        _run_batch(batch, runs, problems, reasons, on_done, started)
+        elapsed = time.perf_counter() - started
+        parts = {**batch.seconds, "stepping": elapsed - sum(batch.seconds.values())}
+        share = {name: value / len(runs) for name, value in parts.items()}
+        for run in runs:
+            outcome = run.outcome
+            if isinstance(outcome, SimulationResult):
+                outcome = dataclasses.replace(outcome, wall_time=elapsed / len(runs))
+            results[run.index] = outcome
+            shares[run.index] = share
+        for name, value in parts.items():
+            seconds[name] += value
+        calls += batch.dynamics.calls
+        states += batch.dynamics.states
+    seconds["total"] = time.perf_counter() - begin
+    assert all(r is not None for r in results)
+    return BatchOutcome(
+        results=tuple(results),  # type: ignore[arg-type]
+        engines=tuple("scalar" if r is not None else "batched" for r in reasons),
+        fallbacks=tuple(reasons),
+        seconds=seconds,
+        shares=tuple(shares),
+        calls=calls,
+        states=states,
+    )
+
+
+def _run_batch(
+    batch: BatchEngine,
+    runs: Sequence[_Run],
+    problems: Sequence[Problem],
+    reasons: list[str | None],
+    on_done: OnDone | None,
+    started: float,
+) -> None:
+    """Drive ``runs`` on ``batch``; if the engine fails, the runs left go to the scalar one."""
+    if on_done is not None:
+        batch.finished = functools.partial(_report, on_done, _Clock(batch, started))
+    try:
+        for run in runs:
+            batch.advance(run)
+        batch.run(runs)
+    except _Finished as stop:
+        raise stop.error from None
+    except Exception as exc:
+        for run in runs:
+            if run.outcome is None:
+                transition = run.transition
+                run.outcome = _simulate_one(problems[run.index], batch.integrator, transition)
+                reasons[run.index] = f"the batched engine failed ({type(exc).__name__})"
+                if on_done is not None:
+                    on_done(run.index, run.outcome, reasons[run.index], None)
+
+
+class _Clock:
+    """A batch's time, handed out to its runs as they end: each gets the time since the last.
+
+    The shares add up to the batch's time (its mean is the batch's time over its runs, as
+    the outcome's equal shares), and each is known when its run ends.
+    """
+
+    def __init__(self, batch: BatchEngine, started: float) -> None:
+        self.batch = batch
+        self.started = started
+        self.parts = dict.fromkeys(PARTS, 0.0)
+
+    def share(self) -> dict[str, float]:
+        """The batch's split [s] since the last call."""
+        elapsed = time.perf_counter() - self.started
+        parts = {**self.batch.seconds, "stepping": elapsed - sum(self.batch.seconds.values())}
+        share = {name: parts[name] - self.parts[name] for name in PARTS}
+        self.parts = parts
+        return share
+
+
+def _report(on_done: OnDone, clock: _Clock, run: _Run) -> None:
+    """Hand a finished batched run to ``on_done``, with its share of the batch's time."""
+    outcome = run.outcome
+    assert outcome is not None
+    share = clock.share()
+    if isinstance(outcome, SimulationResult):
+        outcome = dataclasses.replace(outcome, wall_time=sum(share.values()))
+    on_done(run.index, outcome, None, share)
+
+
+def _simulate_one(
+    problem: Problem, integrator: object, transition: str
+) -> SimulationResult | VtmError:
+    """One run on the scalar engine; its result or the error that ended it."""
+    from .simulation import simulate
+
+    try:
+        return simulate(problem, integrator, transition=transition)  # type: ignore[arg-type]
+    except Exception as exc:
+        return _as_vtm_error(exc)
+
+
+def simulate_many(
+    problems: Sequence[Problem],
+    integrator: object,
+    *,
+    transition: str = "kkt",
+    engine: str = "batched",
+    threads: int = 1,
+) -> list[SimulationResult]:
+    """Simulate many problems with one integrator; the first failure is raised.
+
+    Args:
+        problems: The runs.
+        integrator: The integrator of every run.
+        transition: Transition rule of every run.
+        engine: ``batched`` (runs it cannot take go to the scalar engine) or ``scalar``.
+        threads: Threads of Pinocchio's parallel algorithms.
+
+    Raises:
+        VtmError: The first run that failed.
+    """
+    outcome = run_many(
+        problems,
+        [integrator] * len(problems),
+        transition=transition,
+        engine=engine,
+        threads=threads,
+    )
+    for result in outcome.results:
+        if isinstance(result, VtmError):
+            raise result
+    return list(outcome.results)  # type: ignore[arg-type]
+
+
+def _as_vtm_error(exc: Exception) -> VtmError:
+    """``exc`` as the error a run ends with (a bug says so in one line)."""
+    if isinstance(exc, VtmError):
+        return exc
+    return SimulationError(f"internal error ({type(exc).__name__}: {exc})")
+
+
+def _due(grid: _Grid | None, t_new: float) -> bool:
+    """Whether an output time falls in a step ending at ``t_new`` [s]."""
+    return grid is not None and grid.due(t_new)
+
+
+def _grid_times(grid: _Grid | None, until: float, times: list[float]) -> int:
+    """Append the grid's output times up to ``until`` [s] (and its end); how many."""
+    if grid is None:
+        return 0
+    limit = min(until, grid.end)
+    count = 0
+    while (when := grid.k * grid.dt) <= limit:
+        times.append(when)
+        grid.k += 1
+        count += 1
+    return count

@@ -1,0 +1,687 @@
+"""Hybrid simulation: integrate to the next event, apply the transition, continue.
+
+Time events (prescribed locks, the stop signal, brake engagement, ends of ramps) are hit
+exactly: every integration interval ends on the next one. State events (a sliding joint's rate
+reaching zero, a stuck joint's holding torque reaching its static limit) are located by the
+integrator on its own solution. Each lock, prescribed or by sticking, goes through the chosen
+transition rule with J1 the joints already locked and J2 the ones locking now.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import heapq
+import time
+from collections.abc import Callable, Generator, Sequence
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+
+from ..exceptions import SimulationError
+from ..numerics.constraints import check_independent, lock_jacobian
+from ..numerics.dynamics import compute_energy, compute_M
+from ..numerics.integrators import Integrator, Rhs, Segment
+from ..numerics.integrators.base import writer
+from ..numerics.transitions import TRANSITIONS, TransitionResult
+from ..numerics.transitions.recursive import (
+    compute_joint_lock_transition,
+    compute_joint_lock_transition_dense,
+)
+from ..physics.brakes import Brake, BrakeMachine
+from ..physics.drives import DriveHold, DriveLaw, DriveOff, DriveRamp, short_circuit
+from ..physics.robot import Robot
+from ..physics.stop import Stop
+from .holonomic import (
+    FrameConstraint,
+    check_activation,
+    compute_kinematics,
+    project_initial_state,
+    stack,
+)
+from .phase import WORKS, Phase
+from .problem import LockEvent, Problem, check_transition
+from .results import (
+    EventRecord,
+    LockKind,
+    RowKind,
+    RowLabel,
+    SimulationResult,
+)
+from .topology import Topology, full_data, reduced_model, weightless_model
+
+
+class _Hybrid:
+    """Mutable state of the hybrid loop (kept out of the public result)."""
+
+    def __init__(
+        self,
+        robot: Robot,
+        q: np.ndarray,
+        v: np.ndarray,
+        brakes: Sequence[Brake],
+        stop: Stop | None,
+        rule: str,
+        reduced: bool = True,
+    ) -> None:
+        self.robot = robot
+        self.reduced = reduced
+        n = robot.nv
+        self.q, self.v = q, v
+        self.extras = np.zeros(WORKS + n)
+        self.locked: list[int] = []
+        self.brakes = {robot.joint_index(b.joint): b for b in brakes}
+        self.machine = BrakeMachine(self.brakes, robot.joints, robot.gear_ratio)
+        self.stop = stop
+        self.drive: DriveLaw = DriveOff() if stop is None else DriveHold()
+        self.drive_on = np.full(n, stop is not None)
+        #: The motors' short-circuit braking, and per joint whether its motor is shorted now.
+        self.dynamic = short_circuit(robot) if stop is not None else None
+        self.dynamic_on = np.zeros(n, dtype=bool)
+        self.rule = TRANSITIONS[rule]
+        self.rule_name = rule
+        self.frames: list[FrameConstraint] = []
+        self.baumgarte = (0.0, 0.0)
+        self.data = full_data(robot)
+        self.events: list[EventRecord] = []
+        self.phase = self.new_phase()
+
+    def new_phase(self, locked: Sequence[int] | None = None) -> Phase:
+        topology = Topology(self.robot, self.locked if locked is None else locked, self.q)
+        return Phase(
+            self.robot,
+            topology,
+            self.machine if self.brakes else None,
+            self.drive,
+            self.drive_on,
+            tuple(self.frames),
+            self.baumgarte,
+            full=not self.reduced,
+            dynamic=self.dynamic,
+            dynamic_on=self.dynamic_on,
+        )
+
+    def lock(
+        self,
+        t: float,
+        joints: Sequence[int],
+        kind: LockKind,
+        frames: Sequence[FrameConstraint] = (),
+    ) -> None:
+        """Apply the transition rule for ``joints`` locking and ``frames`` activating at ``t``.
+
+        J1 stacks the locked joints' rows and the active frame constraints; J2 the new ones.
+        """
+        names = self.robot.joints
+        for i in joints:
+            if i in self.locked:
+                raise SimulationError(f"Joint '{names[i]}' is locked twice (again at t = {t} s)")
+        frames = [f.latch(self.robot.model, self.data, self.q) for f in frames]
+        if (frames or self.frames) and self.rule_name == "naive":
+            raise SimulationError("The naive rule is defined for joint locks only")
+        labels = [
+            *(RowLabel(RowKind.JOINT, names[i]) for i in self.locked),
+            *(RowLabel(RowKind.FRAME, f.name, a) for f in self.frames for a in f.axes),
+            *(RowLabel(RowKind.JOINT, names[i]) for i in joints),
+            *(RowLabel(RowKind.FRAME, f.name, a) for f in frames for a in f.axes),
+        ]
+        pure = not (frames or self.frames) and len(set(joints)) == len(joints)
+        if pure and self.rule_name == "kkt" and self.reduced:
+            result = self.joint_lock(joints)
+        elif pure and self.rule_name == "kkt":
+            M = compute_M(self.robot.model, self.data, self.q)
+            result = compute_joint_lock_transition_dense(M, self.v, self.locked, joints)
+        else:
+            result = self.transition(joints, frames, labels)
+        self.events.append(
+            EventRecord(
+                t=t,
+                lock=tuple(names[i] for i in joints),
+                locked_before=tuple(names[i] for i in self.locked),
+                q=self.q.copy(),
+                v_minus=self.v.copy(),
+                transition=result,
+                kind=LockKind.ACTIVATE if frames else kind,
+                activate=tuple(f.name for f in frames),
+                rows=tuple(labels),
+            )
+        )
+        self.locked = self.locked + list(joints)
+        self.frames = self.frames + frames
+        self.v = result.v_plus.copy()
+        self.v[self.locked] = 0.0
+
+    def joint_lock(self, joints: Sequence[int]) -> TransitionResult:
+        """The kkt rule's jump for pure joint locks, in O(n) without forming M.
+
+        Distinct unit rows are independent, so no rank check is needed; the reduced models
+        come from the robot's cache (the next phase reuses the one with gravity).
+        """
+        robot = self.robot
+        locked = tuple(sorted([*self.locked, *joints]))
+        model, data = weightless_model(robot)
+        reduced, reduced_data = reduced_model(robot, locked, self.q[list(locked)], weightless=True)
+        return compute_joint_lock_transition(
+            model, self.q, self.v, self.locked, joints, reduced, data, reduced_data
+        )
+
+    def transition(
+        self, joints: Sequence[int], frames: Sequence[FrameConstraint], labels: Sequence[RowLabel]
+    ) -> TransitionResult:
+        """The rule's jump from the dense M and the stacked J1 (locks, frames) and J2 (new)."""
+        model, n = self.robot.model, self.robot.nv
+        if self.frames or frames:
+            compute_kinematics(model, self.data, self.q, self.v)
+        _, F1, _ = stack(tuple(self.frames), model, self.data)
+        _, F2, _ = stack(tuple(frames), model, self.data)
+        J1 = np.vstack([lock_jacobian(n, self.locked), F1])
+        J2 = np.vstack([lock_jacobian(n, joints), F2])
+        check_independent(np.vstack([J1, J2]), [str(label) for label in labels])
+        M = compute_M(model, self.data, self.q)
+        return self.rule(M, J1, J2, self.v)
+
+    def drop_out(self, joints: np.ndarray | list[int] | slice) -> None:
+        """The drives of ``joints`` drop out: their motors, if they brake, are shorted."""
+        self.drive_on[joints] = False
+        if self.dynamic is not None:
+            self.dynamic_on[joints] = self.dynamic.present[joints]
+
+    def engage(self, t: float, i: int, ideal_locks: list[int]) -> None:
+        """Brake ``i`` engages: its drive drops out; an ideal brake's joint locks now."""
+        self.drop_out([i])
+        if self.machine.engage(t, i, float(self.v[i]), i in self.locked):
+            ideal_locks.append(i)
+
+    def settle(self, t: float, due: Sequence[int] = ()) -> None:
+        """Let the brakes decide stick or slip at ``t``, then build the next phase."""
+        if self.brakes:
+            self.machine.settle(t, self, due)
+        self.phase = self.new_phase()
+
+    # The brake state machine's view of the loop (vtm_pin.physics.brakes.BrakeWorld).
+
+    def holding_torque(self, t: float, locked: Sequence[int]) -> np.ndarray:
+        """Holding torques [N m] with ``locked`` held and the brakes' current modes."""
+        trial = self.new_phase(locked)
+        return trial.holding_torque(t, trial.pack(self.q, self.v, self.extras))
+
+    def accelerations(self, t: float) -> np.ndarray:
+        """Joint accelerations [rad/s^2] with the current locks and modes."""
+        phase = self.new_phase()
+        y = phase.pack(self.q, self.v, self.extras)
+        if phase.full:
+            return phase.accelerations(t, y)
+        k = phase.k
+        a = np.zeros(self.robot.nv)
+        a[phase.topology.free] = phase.rhs(t, y)[k : 2 * k]
+        return a
+
+    def stick(self, t: float, joints: Sequence[int]) -> None:
+        """Brakes that hold their joints at rest: one momentum-consistent lock."""
+        self.lock(t, joints, LockKind.STICK)
+
+
+@dataclass(frozen=True)
+class SegmentRequest:
+    """What the hybrid loop asks an integrator for: one interval of one phase.
+
+    The hybrid loop (:func:`hybrid_run`) yields these and is sent back the
+    :class:`~vtm_pin.numerics.integrators.Segment`; :func:`simulate` answers each at once with the
+    scenario's integrator, the batched engine (:mod:`vtm_pin.core.batch`) answers many runs'
+    requests together.
+
+    Attributes:
+        phase: The phase (topology, modes, torques, state events).
+        rhs: Its right-hand side (with progress reporting if asked for).
+        t0: Start [s].
+        y0: Phase state at ``t0`` (:meth:`Phase.pack`).
+        t1: End [s]: the next time event or the run's end.
+        integrator: The integrator to use (dense output dropped when nothing moves).
+    """
+
+    phase: Phase
+    rhs: Rhs
+    t0: float
+    y0: np.ndarray
+    t1: float
+    integrator: Integrator
+
+    def integrate(self) -> Segment:
+        """The interval integrated by the scalar integrator."""
+        return self.integrator.integrate(
+            self.rhs,
+            self.t0,
+            self.y0,
+            self.t1,
+            [e.event for e in self.phase.events],
+            n_q=self.phase.k,
+        )
+
+
+def simulate(
+    problem: Problem,
+    integrator: Integrator,
+    *,
+    transition: str = "kkt",
+    progress: Callable[[float], None] | None = None,
+) -> SimulationResult:
+    """Simulate a problem: prescribed locks, and brakes after a stop signal.
+
+    Without a stop no joint torque acts (drives off). With a stop, the drives hold the joint
+    rates constant until the signal, then act as its category says, and each brake engages
+    after its delay (see :mod:`vtm_pin.physics.stop` and :mod:`vtm_pin.physics.brakes`). Frame
+    constraints active from t = 0 get q0 and v0 projected onto them first, with a
+    :class:`VtmWarning` if that moves them by more than 1e-6.
+
+    Args:
+        problem: What to simulate (validated when it was built).
+        integrator: How to integrate between events.
+        transition: Name in :data:`vtm_pin.numerics.transitions.TRANSITIONS`.
+        progress: Called with the simulated time t [s] at every right-hand-side evaluation
+            and at the end of every segment, for progress display; it must not change
+            anything (the results do not depend on it).
+
+    Returns:
+        The sampled motion and event records.
+
+    Raises:
+        SimulationError: An unknown transition rule, or the state became non-finite.
+    """
+    run = hybrid_run(problem, integrator, transition=transition, progress=progress)
+    request = next(run)
+    while True:
+        try:
+            request = run.send(request.integrate())
+        except StopIteration as done:
+            result: SimulationResult = done.value
+            return result
+
+
+def hybrid_run(
+    problem: Problem,
+    integrator: Integrator,
+    *,
+    transition: str = "kkt",
+    progress: Callable[[float], None] | None = None,
+    reduced_models: bool = True,
+) -> Generator[SegmentRequest, Segment, SimulationResult]:
+    """The hybrid loop of :func:`simulate` as a generator of integration requests.
+
+    It yields a :class:`SegmentRequest` for every interval between events and must be sent
+    the integrated :class:`~vtm_pin.numerics.integrators.Segment`; it returns the result (as the
+    value of its ``StopIteration``). The wall time it reports runs from its start to its end,
+    so it includes the integration of its intervals, whoever did it (the batched engine
+    replaces it with the run's share of its batch). Without ``reduced_models`` the loop's
+    own dynamics (brake decisions, holding torques, joint-lock jumps by the dense kkt rule)
+    use the full model only, for an integrator that does not evaluate the phases' reduced
+    models.
+
+    Raises:
+        SimulationError: As :func:`simulate`.
+    """
+    if transition not in TRANSITIONS:
+        raise SimulationError(
+            f"Unknown transition '{transition}'; allowed: {', '.join(sorted(TRANSITIONS))}"
+        )
+    check_transition(problem, transition)
+    robot, duration, stop = problem.robot, problem.duration, problem.stop
+    n = robot.nv
+    start = time.perf_counter()
+    h = _Hybrid(
+        robot,
+        problem.q0.copy(),
+        problem.v0.copy(),
+        problem.brakes,
+        stop,
+        transition,
+        reduced_models,
+    )
+    h.baumgarte = problem.baumgarte
+    if problem.constraints:
+        h.frames = [c.latch(robot.model, h.data, h.q) for c in problem.constraints]
+        h.q, h.v = project_initial_state(robot, h.q, h.v, h.frames)
+        h.phase = h.new_phase()
+    queue = _time_events(problem.events, h.brakes, stop, duration)
+    trace = _Trace(n, h.extras.size)
+    if queue and queue[0].t <= 0.0:
+        trace.add_state(0.0, h)  # the state before the events at t = 0
+    rhs_evals = steps = state_events = 0
+    t = 0.0
+    while True:
+        # Events due now (t = 0 or a time event just reached) are applied before integrating.
+        if _apply_time_events(h, queue, t):
+            h.settle(t)
+            if t >= duration:
+                trace.add_state(t, h)  # the state after the events at t = duration
+        if t >= duration:
+            break
+        t_end = min(queue[0].t, duration) if queue else duration
+        phase = h.phase
+        segment = yield SegmentRequest(
+            phase,
+            phase.rhs if progress is None else _Reporting(phase.rhs, progress),
+            t,
+            phase.pack(h.q, h.v, h.extras),
+            t_end,
+            _sampling(integrator, phase),
+        )
+        rhs_evals += segment.rhs_evals
+        steps += segment.steps
+        _check_energy(h, phase, segment.y, segment.t, integrator)
+        h.q, h.v, h.extras = trace.add_segment(phase, segment, h, bool(problem.brakes))
+        t = float(segment.t[-1])
+        if progress is not None:
+            progress(t)
+        if segment.event is not None:
+            state_events += 1
+            _check_chatter(state_events, t)
+            h.settle(t, due=[phase.events[segment.event].joint])
+            if t >= duration:
+                trace.add_state(t, h)
+    return trace.result(
+        robot,
+        h,
+        integrator=integrator.name,
+        rhs_evals=rhs_evals,
+        steps=steps,
+        wall_time=time.perf_counter() - start,
+    )
+
+
+class TimeKind(IntEnum):
+    """Kinds of time events, in the order they apply at one instant."""
+
+    SIGNAL = 0  # the stop button: drives off (category 0) or ramping (category 1)
+    BRAKE_SIGNAL = 1  # category 1: drives of joints without a brake go off
+    ENGAGE = 2  # one brake engages (payload: joint index)
+    LOCK = 3  # prescribed locks and activations (payload: LockEvent)
+    KINK = 4  # a ramp ends: the torques have a kink, the integrator restarts there
+
+
+@dataclass(frozen=True, order=True)
+class TimeEvent:
+    """A time event of the hybrid loop, ordered by time, then kind, then creation.
+
+    Attributes:
+        t: Time [s].
+        kind: What happens.
+        count: Creation order (ties at equal time and kind).
+        payload: The lock event or the joint index the kind needs.
+    """
+
+    t: float
+    kind: TimeKind
+    count: int
+    payload: LockEvent | int | None = field(default=None, compare=False)
+
+
+#: Most brake state events (a joint reaching rest, a stuck joint slipping) in one run: a
+#: safety net against chatter (Zeno behaviour), far above a real stop's few dozen.
+MAX_STATE_EVENTS = 10_000
+
+
+def _check_chatter(count: int, t: float) -> None:
+    """Stop a run whose brakes stick and slip without end."""
+    if count > MAX_STATE_EVENTS:
+        raise SimulationError(
+            f"More than {MAX_STATE_EVENTS} brake state events by t = {t:.6g} s: the brakes "
+            "stick and slip without end (chatter); check the brake torques against the loads"
+        )
+
+
+def _apply_time_events(h: _Hybrid, queue: list[TimeEvent], t: float) -> bool:
+    """Apply the time events due at ``t`` (in heap order); whether there were any."""
+    ideal: list[int] = []
+    frames: list[FrameConstraint] = []
+    changed = False
+    while queue and queue[0].t <= t:
+        event = heapq.heappop(queue)
+        changed = True
+        match event.kind, event.payload:
+            case TimeKind.LOCK, LockEvent() as lock:
+                ideal.extend(h.robot.joint_indices(lock.lock))
+                frames.extend(lock.activate)
+            case TimeKind.SIGNAL, _:
+                assert h.stop is not None
+                if h.stop.category == 0:
+                    h.drive = DriveOff()
+                    h.drop_out(slice(None))
+                else:
+                    h.drive = DriveRamp(h.stop, h.v.copy())
+            case TimeKind.BRAKE_SIGNAL, _:
+                h.drop_out([i for i in range(h.robot.nv) if i not in h.brakes])
+            case TimeKind.ENGAGE, int() as joint:
+                h.engage(t, joint, ideal)
+    if ideal or frames:
+        h.lock(t, ideal, LockKind.LOCK, frames)
+    return changed
+
+
+class _Trace:
+    """The samples of a run, collected block by block (a segment, or one state)."""
+
+    def __init__(self, n: int, n_extras: int) -> None:
+        self.n = n
+        self.n_extras = n_extras
+        self.blocks: dict[str, list[np.ndarray]] = {
+            key: [] for key in ("t", "q", "v", "free", "modes", "extras", "hold", "drift")
+        }
+
+    def _append(self, **arrays: np.ndarray) -> None:
+        for key, value in arrays.items():
+            self.blocks[key].append(value)
+
+    def add_state(self, t: float, h: _Hybrid) -> None:
+        """One sample of the hybrid state as it is now (before or after events at ``t``)."""
+        free = np.ones(self.n, dtype=bool)
+        free[h.locked] = False
+        self._append(
+            t=np.array([t]),
+            q=h.q[None].copy(),
+            v=h.v[None].copy(),
+            free=free[None],
+            modes=np.array(h.machine.modes, dtype=np.int8)[None],
+            extras=h.extras[None].copy(),
+            hold=np.full((1, self.n), np.nan),
+            drift=np.full((1, 2), np.nan),
+        )
+
+    def add_segment(
+        self, phase: Phase, segment: Segment, h: _Hybrid, holding: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Record a segment; returns the full (q, v, extras) at its end."""
+        n, k, size = self.n, phase.k, segment.t.size
+        topology = phase.topology
+        q = np.empty((size, n))
+        v = np.zeros((size, n))
+        q[:, topology.locked_index] = topology.q_locked
+        q[:, topology.free] = segment.y[:, :k]
+        v[:, topology.free] = segment.y[:, k : 2 * k]
+        hold = np.full((size, n), np.nan)
+        if holding and topology.locked and segment.holding is not None:
+            locked = list(topology.locked)
+            hold[:, locked] = segment.holding[:, locked]
+        elif holding and topology.locked:
+            locked = list(topology.locked)
+            for r in range(size):
+                hold[r, locked] = phase.holding_torque(segment.t[r], segment.y[r])[locked]
+        extras = phase.unpack_extras(segment.y, h.extras)
+        self._append(
+            t=segment.t,
+            q=q,
+            v=v,
+            free=np.repeat(topology.free_mask[None], size, axis=0),
+            modes=np.repeat(np.array(h.machine.modes, dtype=np.int8)[None], size, axis=0),
+            extras=extras,
+            hold=hold,
+            drift=phase.constraint_drift(segment.y),
+        )
+        return q[-1].copy(), v[-1].copy(), extras[-1].copy()
+
+    def result(
+        self,
+        robot: Robot,
+        h: _Hybrid,
+        *,
+        integrator: str,
+        rhs_evals: int,
+        steps: int,
+        wall_time: float,
+    ) -> SimulationResult:
+        """The collected samples and the events as a :class:`SimulationResult`."""
+        rows = {key: np.concatenate(blocks) for key, blocks in self.blocks.items()}
+        work = rows["extras"]
+        return SimulationResult(
+            joints=robot.joints,
+            t=rows["t"],
+            q=rows["q"],
+            v=rows["v"],
+            free=rows["free"],
+            modes=rows["modes"],
+            brake_work=work[:, 0],
+            drive_work=work[:, 1],
+            short_circuit_work=work[:, 2],
+            brake_impulse=work[-1, WORKS:].copy(),
+            holding=rows["hold"],
+            drift=rows["drift"],
+            events=tuple(h.events),
+            brake_events=tuple(h.machine.events),
+            transition=h.rule_name,
+            integrator=integrator,
+            rhs_evals=rhs_evals,
+            steps=steps,
+            wall_time=wall_time,
+            stop=h.stop,
+        )
+
+
+#: Largest energy-balance error of one interval, as a fraction of the energy it moved. A
+#: blow-up detector, not an accuracy monitor: the balance residual is in summary.json.
+ENERGY_TOLERANCE = 0.1
+_ENERGY_SAMPLES = 9  # states per interval at which the energy is evaluated
+#: Relative round-off of the mechanical energy T + V [-]: an interval that moves less than
+#: this much of it cannot be judged (measured: 4e-13 to 2e-9 J residuals on ~10 J runs).
+ENERGY_ROUNDOFF = 1e-9
+
+
+def _check_energy(
+    h: _Hybrid, phase: Phase, y: np.ndarray, t: np.ndarray, integrator: Integrator
+) -> None:
+    """Raise if an interval started off its new constraints or broke the energy balance.
+
+    A frame constraint activated at the interval's start must hold there (the frames meet, a
+    docked frame is at its target): otherwise the error names it and the distance. Between
+    events T + V changes only by the brakes' and drives' work; a step far too large makes it
+    grow or collapse (or go non-finite) long before anything else is visibly wrong.
+    """
+    last = h.events[-1] if h.events else None
+    if last is not None and last.activate and last.t == t[0]:
+        q_start, _ = phase.topology.merge(y[0, : 2 * phase.k])
+        new = [f for f in h.frames if f.name in last.activate]
+        check_activation(new, h.robot.model, h.data, q_start, float(t[0]))
+    if not np.isfinite(y).all():
+        row = int(np.argmin(np.isfinite(y).all(axis=1)))
+        bad = np.flatnonzero(~np.isfinite(y[row, : 2 * phase.k])) % max(phase.k, 1)
+        names = dict.fromkeys(h.robot.joints[phase.topology.free[i]] for i in bad)
+        raise SimulationError(
+            f"The state of {', '.join(names) or 'the brakes'} became non-finite at "
+            f"t = {t[row]:.6g} s with {_settings(integrator)}: the step is too large for "
+            "these dynamics; reduce it"
+        )
+    if phase.k == 0 or not hasattr(integrator, "dt"):
+        return  # nothing moves, or an error-controlled method that cannot blow up silently
+    energies, works = [], []
+    rows = np.unique(np.linspace(0, len(y) - 1, min(len(y), _ENERGY_SAMPLES)).astype(int))
+    for row in y[rows]:
+        q, v = phase.topology.merge(row[: 2 * phase.k])
+        energies.append(compute_energy(h.robot.model, h.data, q, v))
+        works.append(phase.unpack_extras(row, h.extras)[:WORKS])
+    (t0, v0), (t1, v1) = energies[0], energies[-1]
+    brake, drive, short = works[-1] - works[0]
+    residual = (t0 + v0) - (t1 + v1) - (brake + short - drive)
+    # Energy moved: the largest kinetic energy and potential change seen, and the work done.
+    kinetic = max(e[0] for e in energies)
+    potential = max(e[1] for e in energies) - min(e[1] for e in energies)
+    moved = max(kinetic, potential, abs(brake), abs(drive), abs(short))
+    # Round-off of T + V itself (|V| may be large while little moves) is no blow-up.
+    roundoff = ENERGY_ROUNDOFF * max(1.0, abs(t0) + abs(v0))
+    if abs(residual) > max(ENERGY_TOLERANCE * moved, roundoff):
+        raise SimulationError(
+            f"Energy balance broken by {residual:.3g} J ({100 * abs(residual) / moved:.0f} % of "
+            f"the energy moved) between t = {t[0]:g} s and {t[-1]:g} s with "
+            f"{_settings(integrator)}: the step is too large for these dynamics; reduce it"
+        )
+
+
+def _sampling(integrator: Integrator, phase: Phase) -> Integrator:
+    """The integrator for ``phase``: without dense output when every joint is locked.
+
+    Nothing moves then (the state holds only work integrals, which stay constant), so samples
+    at ``output_dt`` would repeat one state; the phase's ends are recorded instead.
+    """
+    if phase.k == 0 and getattr(integrator, "output_dt", None) is not None:
+        unsampled: Integrator = dataclasses.replace(integrator, output_dt=None)  # type: ignore[type-var]
+        return unsampled
+    return integrator
+
+
+class _Reporting:
+    """The right-hand side ``rhs``, telling ``progress`` the time of each evaluation.
+
+    It writes into the integrator's buffers as ``rhs`` does (see
+    :data:`~vtm_pin.numerics.integrators.base.RhsInto`).
+    """
+
+    def __init__(self, rhs: Rhs, progress: Callable[[float], None]) -> None:
+        self.rhs = rhs
+        self.progress = progress
+        self._into = writer(rhs)
+
+    def __call__(self, t: float, y: np.ndarray) -> np.ndarray:
+        """f(t, y), after telling ``progress`` the time t [s]."""
+        self.progress(t)
+        return self.rhs(t, y)
+
+    def into(self, t: float, y: np.ndarray, out: np.ndarray) -> None:
+        """f(t, y) into ``out``, after telling ``progress`` the time t [s]."""
+        self.progress(t)
+        self._into(t, y, out)
+
+
+def _settings(integrator: Integrator) -> str:
+    dt = getattr(integrator, "dt", None)
+    if dt is not None:
+        return f"{integrator.name} dt = {dt:g} s"
+    rtol = getattr(integrator, "rtol", float("nan"))
+    atol = getattr(integrator, "atol", float("nan"))
+    return f"{integrator.name} rtol = {rtol:g}, atol = {atol:g}"
+
+
+def _time_events(
+    events: Sequence[LockEvent],
+    brakes: dict[int, Brake],
+    stop: Stop | None,
+    duration: float,
+) -> list[TimeEvent]:
+    """Heap of the run's time events up to ``duration``."""
+    items: list[tuple[float, TimeKind, LockEvent | int | None]] = []
+    for event in events:
+        items.append((event.t, TimeKind.LOCK, event))
+    if stop is not None:
+        items.append((stop.t, TimeKind.SIGNAL, None))
+        if stop.category == 1:
+            assert stop.ramp_time is not None
+            items.append((stop.t + stop.ramp_time, TimeKind.KINK, None))
+            items.append((stop.brake_signal, TimeKind.BRAKE_SIGNAL, None))
+        for i, brake in sorted(brakes.items()):
+            t_engage = stop.brake_signal + brake.delay
+            items.append((t_engage, TimeKind.ENGAGE, i))
+            if brake.friction.ramp > 0.0:
+                items.append((t_engage + brake.friction.ramp, TimeKind.KINK, None))
+    queue = [
+        TimeEvent(t, kind, count, payload)
+        for count, (t, kind, payload) in enumerate(items)
+        if t <= duration
+    ]
+    heapq.heapify(queue)
+    return queue

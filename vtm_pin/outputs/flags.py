@@ -1,0 +1,342 @@
+"""Honest flags: where a stopping figure rests on assumptions that break.
+
+A figure a safety engineer signs must not silently describe something else than a stop:
+
+* ``brake_cannot_hold``: a brake's static torque (joint side, full normal force; 0 for a joint
+  without a brake that no prescribed lock holds) is below the gravity load of its joint with
+  the arm held, at the signal or at some instant of the stop. Such an arm cannot be held on
+  its brakes: it collapses, and its tested joint's angle understates what moves (the tool's
+  drop is quoted);
+* ``brake_cannot_stop``: a brake's least kinetic torque (what is left to stop a moving joint)
+  is below its joint's gravity load: a joint that moves slides on under its own weight (to
+  the speed at which a speed-dependent brake balances it), whatever its static torque holds;
+* ``joint_slips``: the engaged brake of a joint other than the tested one gave way (it could
+  not hold its joint at rest: it started sliding from rest, or slipped when stuck), so the
+  arm moved where the test says only one joint moves;
+* ``payload_above_rated``: a payload above the robot data file's rated payload;
+* ``payload_implausible``: a payload heavier than the arm itself, or whose centre of mass is
+  further from its frame than the arm is long (the robot has no rated payload to compare);
+* ``tool_speed_implausible``: a peak tool speed during the stop above what the drives could
+  give from the pose at the signal, every joint at its URDF velocity limit (the arm falls or
+  is whipped by a lock);
+* ``not_stopped``: some joint still moves at the end of the run;
+* ``worn_brake_cannot_hold``: with the bounds' brake wear, a brake cannot hold the load (set by
+  :func:`vtm_pin.outputs.figures.bounded`): the upper bounds describe a collapsing arm;
+* ``bounds_not_stopped``: a run the bounds need (worn brakes, a moved calibrated figure) still
+  moves at the end: no upper bound is given (set by :func:`vtm_pin.outputs.figures.bounded`).
+
+Flags are a case's record, never a failure: the figures stay, with the flag beside them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from ..core.results import SimulationResult
+from ..physics.brakes import Brake, BrakeEventKind
+from ..physics.kinematics import compute_tool_jacobian
+from ..physics.payload import Payload
+from ..physics.robot import Robot
+from .stopping import StoppingReport
+
+#: The flag kinds, in the order reports list them.
+KINDS = (
+    "brake_cannot_hold",
+    "brake_cannot_stop",
+    "worn_brake_cannot_hold",
+    "bounds_not_stopped",
+    "joint_slips",
+    "not_stopped",
+    "payload_above_rated",
+    "payload_implausible",
+    "tool_speed_implausible",
+)
+#: Relative slack of the holding check and the rated payload (round-off, not a margin) [-].
+SLACK = 1e-9
+#: States of a stop at which the brakes' torques are checked against the gravity loads.
+LOAD_SAMPLES = 50
+
+
+@dataclass(frozen=True)
+class Flag:
+    """A broken assumption behind a case's figures.
+
+    Attributes:
+        kind: One of :data:`KINDS`.
+        message: What broke, one line, with the figures.
+        joints: The joints concerned.
+        value: The figure that broke (a holding margin [N m], a mass [kg], a speed [m/s]).
+        limit: What it was checked against, in the same unit.
+    """
+
+    kind: str
+    message: str
+    joints: tuple[str, ...] = ()
+    value: float = math.nan
+    limit: float = math.nan
+
+
+def static_torques(robot: Robot, brakes: Sequence[Brake]) -> np.ndarray:
+    """Each joint's static brake torque at full normal force, joint side [N m].
+
+    NaN for joints without a brake, +inf for ideal brakes.
+    """
+    static = np.full(robot.nv, np.nan)
+    for brake in brakes:
+        i = robot.joint_index(brake.joint)
+        static[i] = math.inf if brake.ideal else brake.static(math.inf, float(robot.gear_ratio[i]))
+    return static
+
+
+def gravity_loads(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """|g(q)|: the torque each joint's lock gives to hold the arm still [N m], shape (k, n).
+
+    Args:
+        robot: The robot (payload attached).
+        q: Configurations [rad], shape (k, n).
+    """
+    model = robot.model
+    data = model.createData()
+    return np.abs([pin.computeGeneralizedGravity(model, data, row) for row in np.atleast_2d(q)])
+
+
+def kinetic_torques(robot: Robot, brakes: Sequence[Brake]) -> np.ndarray:
+    """Each joint's least kinetic brake torque at full normal force, joint side [N m].
+
+    What is left to stop a moving joint (a Stribeck brake's far from rest). NaN without a
+    brake, +inf for ideal brakes.
+    """
+    kinetic = np.full(robot.nv, np.nan)
+    for brake in brakes:
+        i = robot.joint_index(brake.joint)
+        ratio = float(robot.gear_ratio[i])
+        kinetic[i] = math.inf if brake.ideal else ratio * brake.friction.least_kinetic
+    return kinetic
+
+
+def holding_flags(
+    robot: Robot, brakes: Sequence[Brake], result: SimulationResult, report: StoppingReport
+) -> list[Flag]:
+    """``brake_cannot_hold`` and ``brake_cannot_stop`` from the signal on (see the module).
+
+    The loads are checked at the signal, at the end and at :data:`LOAD_SAMPLES` states evenly
+    between (a gravity load changes smoothly with the pose; every sample would cost a study's
+    case about 2 ms).
+    """
+    after = np.flatnonzero(result.t >= report.signal_time)
+    if after.size == 0:
+        return []
+    rows = after[np.unique(np.linspace(0, after.size - 1, LOAD_SAMPLES).round().astype(int))]
+    loads = gravity_loads(robot, result.q[rows])
+    out = []
+    for kind, torques, what, consequence in (
+        (
+            "brake_cannot_hold",
+            static_torques(robot, brakes),
+            "hold the arm's weight",
+            "the arm collapses",
+        ),
+        (
+            "brake_cannot_stop",
+            kinetic_torques(robot, brakes),
+            "stop its joint once it moves",
+            "a moving arm slides on under its own weight",
+        ),
+    ):
+        # A joint without a brake holds nothing, unless a prescribed lock holds it to the end.
+        torques[np.isnan(torques) & result.free[-1]] = 0.0
+        flag = _load_flag(robot, report, loads, torques, kind, what, consequence)
+        if flag is not None:
+            out.append(flag)
+    return out
+
+
+def _load_flag(
+    robot: Robot,
+    report: StoppingReport,
+    loads: np.ndarray,
+    torques: np.ndarray,
+    kind: str,
+    what: str,
+    consequence: str,
+) -> Flag | None:
+    """A flag if some joint's brake ``torques`` are below its gravity ``loads`` [N m]."""
+    margins = torques - loads
+    slack = SLACK * max(1.0, float(np.max(loads)))
+    worst = np.min(np.where(np.isnan(margins), math.inf, margins), axis=0)
+    weak = [i for i in range(robot.nv) if worst[i] < -slack]
+    if not weak:
+        return None
+    j = min(weak, key=lambda i: worst[i])
+    names = tuple(robot.joints[i] for i in weak)
+    when = "at the signal" if margins[0, j] < -slack else "during the stop"
+    load = float(np.max(loads[:, j]))
+    return Flag(
+        kind,
+        f"the brake of {', '.join(names)} cannot {what} {when} ({robot.joints[j]}: "
+        f"{'static' if kind == 'brake_cannot_hold' else 'sliding'} torque {torques[j]:.4g} N m"
+        f"{' (no brake)' if torques[j] == 0.0 else ''} against a gravity load of up to "
+        f"{load:.4g} N m, joint side): {consequence}; the tool drops {tool_drop(report):.3g} m, "
+        "more than the tested joint's angle says",
+        names,
+        float(worst[j]),
+        0.0,
+    )
+
+
+def tool_drop(report: StoppingReport) -> float:
+    """How far the tool frame falls below its height at the signal during the stop [m]."""
+    path = report.tcp_path
+    return float(max(0.0, path[0, 2] - np.min(path[:, 2]))) if len(path) else 0.0
+
+
+def slip_flag(result: SimulationResult, tested: str | None) -> Flag | None:
+    """``joint_slips`` if the engaged brake of a joint other than ``tested`` gave way.
+
+    Only the tested joint moves in an Annex-B test. A joint whose brake could not hold it at
+    rest (it started sliding from rest, or slipped when stuck) breaks that. Motion before a
+    brake engages (the joints fall or swing during the brake delay) and the slide to rest
+    after it are not slips; their size is the ``other_travel`` figure.
+    """
+    giving = (BrakeEventKind.START, BrakeEventKind.SLIP)
+    slid = {e.joint for e in result.brake_events if e.kind in giving}
+    names = tuple(j for j in result.joints if j != tested and j in slid)
+    if not names:
+        return None
+    i0 = 0 if result.stop is None else int(np.argmax(result.t >= result.stop.t))
+    travel = [
+        float(
+            np.max(
+                np.abs(result.q[i0:, result.joints.index(n)] - result.q[i0, result.joints.index(n)])
+            )
+        )
+        for n in names
+    ]
+    shown = ", ".join(f"{n} {x:.3g}" for n, x in zip(names, travel, strict=True))
+    return Flag(
+        "joint_slips",
+        f"the brake of {', '.join(names)} gave way (it could not hold its joint at rest; travel "
+        f"after the signal: {shown} rad or m), so more than the "
+        f"{'tested joint' if tested else 'stop alone'} moved",
+        names,
+        max(travel),
+    )
+
+
+def payload_flags(robot: Robot, payload: Payload | None) -> list[Flag]:
+    """``payload_above_rated`` and ``payload_implausible`` of a case's payload."""
+    if payload is None:
+        return []
+    flags = []
+    rated = robot.rated_payload
+    if rated is not None and payload.mass > rated * (1.0 + SLACK):
+        flags.append(
+            Flag(
+                "payload_above_rated",
+                f"the payload of {payload.mass:g} kg is above the rated payload of {rated:g} kg "
+                f"(robot data of {robot.name})",
+                value=payload.mass,
+                limit=rated,
+            )
+        )
+    arm_mass = float(sum(inertia.mass for inertia in robot.model.inertias)) - payload.mass
+    if rated is None and payload.mass > arm_mass:
+        flags.append(
+            Flag(
+                "payload_implausible",
+                f"the payload of {payload.mass:g} kg is heavier than the arm itself "
+                f"({arm_mass:.3g} kg) and the robot data give no rated payload",
+                value=payload.mass,
+                limit=arm_mass,
+            )
+        )
+    length = arm_length(robot)
+    offset = float(np.linalg.norm(payload.com))
+    if offset > length:
+        flags.append(
+            Flag(
+                "payload_implausible",
+                f"the payload's centre of mass is {offset:.3g} m from its frame, more than the "
+                f"arm is long ({length:.3g} m)",
+                value=offset,
+                limit=length,
+            )
+        )
+    return flags
+
+
+def arm_length(robot: Robot) -> float:
+    """Sum of the distances between consecutive joint origins and to the tool frame [m]."""
+    model = robot.model
+    total = sum(float(np.linalg.norm(p.translation)) for p in list(model.jointPlacements)[1:])
+    tool = model.frames[model.getFrameId(robot.tool_frame)] if robot.tool_frame else None
+    return total + (float(np.linalg.norm(tool.placement.translation)) if tool is not None else 0.0)
+
+
+def speed_flag(
+    robot: Robot, result: SimulationResult, report: StoppingReport, tool_frame: str
+) -> Flag | None:
+    """``tool_speed_implausible``: a peak tool speed the drives could not give from the pose.
+
+    The bound is sum_j |J_j(q_signal)| v_lim,j, the tool speed of every joint at its URDF
+    velocity limit in the worst combination; robots without velocity limits are not checked.
+    """
+    limits = np.asarray(robot.model.velocityLimit, dtype=float)
+    if not np.all(np.isfinite(limits) & (limits > 0.0)):
+        return None
+    i0 = int(np.argmax(result.t >= report.signal_time))
+    jac = compute_tool_jacobian(robot, result.q[i0][None], tool_frame)[0]
+    bound = float(np.linalg.norm(jac, axis=0) @ limits)
+    if report.tcp_peak_speed <= bound * (1.0 + SLACK):
+        return None
+    return Flag(
+        "tool_speed_implausible",
+        f"the tool reaches {report.tcp_peak_speed:.3g} m/s during the stop, more than the "
+        f"{bound:.3g} m/s every joint at its velocity limit could give from the pose at the "
+        "signal: the arm falls, or a lock whips it",
+        value=report.tcp_peak_speed,
+        limit=bound,
+    )
+
+
+def case_flags(
+    robot: Robot,
+    brakes: Sequence[Brake],
+    payload: Payload | None,
+    result: SimulationResult,
+    report: StoppingReport,
+    tested: str | None,
+    tool_frame: str,
+) -> tuple[Flag, ...]:
+    """Every flag of one stop, in the order of :data:`KINDS`.
+
+    Args:
+        robot: The robot simulated (payload attached).
+        brakes: Its brakes.
+        payload: The payload, if any.
+        result: The simulation.
+        report: Its stopping report.
+        tested: The joint under test (Annex-B cases), else None.
+        tool_frame: The frame the report follows.
+    """
+    found = [
+        *holding_flags(robot, brakes, result, report),
+        slip_flag(result, tested),
+        None
+        if not report.moving
+        else Flag(
+            "not_stopped",
+            f"{', '.join(report.moving)} still moving at the end of the run "
+            f"(t = {report.end_time:g} s): the stopping figures are lower bounds",
+            report.moving,
+        ),
+        *payload_flags(robot, payload),
+        speed_flag(robot, result, report, tool_frame),
+    ]
+    flags = [f for f in found if f is not None]
+    return tuple(sorted(flags, key=lambda f: KINDS.index(f.kind)))

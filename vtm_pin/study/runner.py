@@ -1,0 +1,985 @@
+"""Running a study: its cases on all cores or on a Dask cluster, stored as they finish.
+
+Every case is a simulation of the case's scenario and its stopping report, by the batched
+engine (:mod:`vtm_pin.core.batch`: a worker advances a batch of cases together; cases it cannot
+take run on the scalar engine) or the scalar one. A case that fails is recorded with its
+one-line message and the study goes on. Each finished case is written at
+once, atomically, to ``DIR/cases/<id>.json``; ``DIR/study.json`` holds the study's
+fingerprint. Run again after an interruption (Ctrl-C, or the process killed outright), the
+same command computes only the cases missing there; a changed study is refused rather than
+mixed with old results. The results table, its summary and the report are written once, by
+the driver process only, when every case is done (:func:`run_study`).
+
+Executors: one worker runs the cases in the driver process; more use a process pool, and a
+scheduler address sends them to a Dask cluster (:mod:`vtm_pin.study.executors`). A worker loads each
+robot model once (a :class:`~vtm_pin.physics.robot.RobotCache`), not once per case.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import hashlib
+import json
+import math
+import os
+import platform
+import re
+import statistics
+import sys
+import tempfile
+import time
+import warnings
+from collections.abc import Callable, Generator, Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..core.batch import ENGINES, PARTS
+from ..exceptions import OutputError, StudyError, VtmError, VtmWarning, excerpt
+from ..files.inputs import read_text
+from ..files.staging import output_lock, write_staged
+from ..outputs.figures import DEFINITIONS as FIGURE_DEFINITIONS
+from ..outputs.figures import METRICS
+from ..outputs.flags import KINDS as FLAG_KINDS
+from ..physics.robot import RobotCache
+from .cases import Case, Study
+from .executors import close, connect, dask_workers, on_dask, on_pool
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+
+#: Files of a study's output folder.
+CASES_FOLDER, STATE_FILE = "cases", "study.json"
+#: Most flagged cases whose messages summary.json lists (the table flags every case).
+MAX_FLAGGED_SUMMARY = 100
+#: What each column of the results table means besides the figures of
+#: :data:`vtm_pin.outputs.figures.DEFINITIONS` (summary.json and report.html quote these).
+DEFINITIONS = {
+    "case": "Stable id of the case: a hash of its axis values (and of its index in sampled "
+    "studies).",
+    "status": "ok: every joint came to rest; not_stopped: some joint was still moving at the "
+    "end of the run (lengthen duration); error: <message>: the case failed.",
+    "holds": "true: every brake's static torque holds its joint's gravity load throughout the "
+    "stop, and its sliding torque stops it; false: some brake cannot (see flags).",
+    "flags": f"Broken assumptions behind the case's figures ({', '.join(FLAG_KINDS)}), ; "
+    "separated; each case record (cases/<case>.json) has the messages.",
+    **FIGURE_DEFINITIONS,
+    "stop_time.<joint>": "That joint's stopping time [s].",
+    "stop_angle.<joint>": "That joint's travel after the signal, |q(end) - q(signal)| [rad].",
+    "wall_time": "Time this case took to build, simulate and report [s].",
+}
+
+
+@dataclass(frozen=True)
+class CaseTask:
+    """What a worker needs to run one case (picklable: sent to processes and clusters).
+
+    Attributes:
+        base: The base scenario, parsed.
+        base_dir: Folder the base scenario's relative paths are resolved against.
+        source: The base scenario file, for messages.
+        name: The base scenario's name.
+        case: The case.
+        study: The study's fingerprint, carried by the case's record.
+    """
+
+    base: Mapping[str, Any]
+    base_dir: str
+    source: str
+    name: str
+    case: Case
+    study: str = ""
+
+
+@dataclass(frozen=True)
+class StudyOutput:
+    """What :func:`run_study` produced.
+
+    Attributes:
+        study: The study.
+        table: The results table, one row per case in study order.
+        summary: The JSON-ready summary written to ``summary.json``.
+        files: Names of the files written into the output folder, sorted.
+        computed: Cases computed by this call (the others were stored by an earlier one).
+        phases: Wall time of this call's phases [s]: ``cases`` (running and storing them),
+            ``outputs`` (table, summary, graphs and report).
+    """
+
+    study: Study
+    table: pd.DataFrame
+    summary: Mapping[str, Any]
+    files: tuple[str, ...]
+    computed: int
+    phases: Mapping[str, float] = field(default_factory=dict)
+
+
+#: This process's robots: a worker loads each robot model once, not once per case.
+_ROBOTS = RobotCache()
+
+
+def run_cases(
+    tasks: Sequence[CaseTask], engine: str = "batched", store: str | None = None
+) -> list[dict[str, Any]]:
+    """Run cases; returns their records (JSON-ready), in order. Never raises for a case.
+
+    A record holds the case id, index and values, ``status``, the metrics of
+    :data:`METRICS` and per joint (None where undefined), the scenario's assumptions, the
+    engine that ran it (and why not the batched one, if it was asked for), and the timing
+    split: ``build`` (scenario and model), ``simulate`` (with the batched engine, the case's
+    share of its batch: the batch's time since its previous case ended), ``report`` [s].
+
+    Args:
+        tasks: The cases.
+        engine: ``batched`` (cases of one robot advance together, see
+            :mod:`vtm_pin.core.batch`) or ``scalar``.
+        store: A study's output folder: each record is written into its ``cases`` folder as
+            soon as its case is done (a batch's first cases are kept if it is interrupted).
+            A batched case's ``simulate`` time is then the batch's time since its previous
+            case ended: these add up to the batch's time.
+
+    Raises:
+        OutputError: A record cannot be written into ``store``.
+    """
+    from ..outputs.figures import bound_variants
+    from ..scene.scenario import build_scenario
+    from .cases import resolve_case
+
+    keep = functools.partial(_keep, None if store is None else Path(store))
+    records: list[dict[str, Any]] = []
+    built: list[tuple[dict[str, Any], Any, list[Any]]] = []  # record, scenario, bound variants
+    for task in tasks:
+        case = task.case
+        record: dict[str, Any] = {
+            "case": case.id,
+            "study": task.study,
+            "index": case.index,
+            "values": dict(case.values),
+        }
+        records.append(record)
+        start = time.perf_counter()
+        try:
+            raw = resolve_case(task.base, case.values)
+            source = f"{task.source} (case {case.id})"
+            scenario = build_scenario(
+                raw,
+                source=source,
+                base_dir=Path(task.base_dir),
+                name=task.name,
+                loader=_ROBOTS,
+                valid=_valid_base(task.base),
+            )
+            extra = bound_variants(scenario, _ROBOTS) if scenario.bounds is not None else []
+            built.append((record, scenario, extra))
+        except Exception as exc:
+            _record_error(record, exc)
+        record["timing"] = {"build": time.perf_counter() - start}
+    for record in records:
+        if str(record.get("status", "")).startswith("error"):  # it could not be built
+            record["wall_time"] = sum(record["timing"].values())
+            keep(record)
+    groups: dict[str, list[tuple[dict[str, Any], Any, list[Any]]]] = {}
+    for item in built:
+        groups.setdefault(item[1].transition, []).append(item)
+    for transition, items in groups.items():
+        _run_group(transition, items, engine, keep)
+    return records
+
+
+def _run_group(
+    transition: str,
+    items: Sequence[tuple[dict[str, Any], Any, list[Any]]],
+    engine: str,
+    keep: Callable[[dict[str, Any]], None],
+) -> None:
+    """Run cases of one transition rule, each with its bounds' variants, in one batch.
+
+    A case's record is completed and kept as soon as its runs have ended.
+    """
+    from ..core.batch import run_many
+
+    runs = [(k, s) for k, (_, scenario, extra) in enumerate(items) for s in (scenario, *extra)]
+    ended: list[list[Any]] = [[] for _ in items]  # per case: (scenario, result, reason, share)
+    sizes = [1 + len(extra) for _, _, extra in items]
+
+    def on_done(i: int, result: Any, reason: str | None, share: Any) -> None:
+        k, scenario = runs[i]
+        ended[k].append((i, scenario, result, reason, share))
+        if len(ended[k]) == sizes[k]:
+            _complete(items[k][0], items[k][1], sorted(ended[k], key=lambda e: e[0]), engine)
+            keep(items[k][0])
+
+    try:
+        run_many(
+            [s.problem for _, s in runs],
+            [s.integrator for _, s in runs],
+            transition=transition,
+            engine=engine,
+            on_done=on_done,
+        )
+    except OutputError:
+        raise
+    except Exception as exc:  # a bug: every case not yet done fails with it
+        for k, (record, _, _) in enumerate(items):
+            if len(ended[k]) < sizes[k]:
+                _record_error(record, exc)
+                record["timing"]["report"] = 0.0
+                record["wall_time"] = sum(record["timing"].values())
+                keep(record)
+        return
+
+
+def _complete(
+    record: dict[str, Any], scenario: Any, ended: Sequence[tuple[Any, ...]], engine: str
+) -> None:
+    """Fill a case's record from its runs (the case's own first, then its bounds' variants)."""
+    (_, _, result, reason, share), *variants = ended
+    record["engine"] = "scalar" if reason is not None else "batched"
+    record["fallback"] = reason if engine == "batched" else None
+    if share is not None:
+        record["engine_split"] = share
+    _record_result(record, scenario, result, [(v[1], v[2]) for v in variants])
+    record["wall_time"] = sum(record["timing"].values())
+
+
+def _keep(store: Path | None, record: dict[str, Any]) -> None:
+    """Write a finished case's record into the store's folder (if there is one)."""
+    if store is not None:
+        begin = time.perf_counter()
+        save_record(store, record)
+        record["timing"]["write"] = time.perf_counter() - begin
+
+
+#: This process's study bases that pass the scenario schema (by their repr), and those that do
+#: not: a base is checked once, not once per case (a scalar study sends one case at a time).
+_BASES: dict[str, bool] = {}
+
+
+def _valid_base(base: Mapping[str, Any]) -> Mapping[str, Any] | None:
+    """``base`` if it passes the scenario schema (its cases are then checked against it)."""
+    from ..scene.scenario import passes_schema
+
+    key = repr(base)  # exact for parsed YAML: equal reprs, equal documents
+    ok = _BASES.get(key)
+    if ok is None:
+        ok = passes_schema(base)
+        if len(_BASES) >= 16:
+            _BASES.clear()
+        _BASES[key] = ok
+    return base if ok else None
+
+
+def _record_result(
+    record: dict[str, Any], scenario: Any, result: Any, variants: Sequence[tuple[Any, Any]] = ()
+) -> None:
+    """Fill a case's record from its simulation (or the error that ended it).
+
+    ``variants``: the runs its bounds need (scenario, result or error), if it asks for bounds.
+    """
+    from ..outputs.figures import bounded, describe_flags, stop_figures
+    from ..outputs.stopping import compute_stopping_report
+    from ..scene.scenario import scenario_failure
+
+    begin = time.perf_counter()
+    try:
+        if isinstance(result, Exception):
+            raise scenario_failure(scenario, result)
+        if scenario.stop is None:
+            raise StudyError(scenario.source, "stop", "a study case needs a stop to measure")
+        report = compute_stopping_report(
+            scenario.robot, result, scenario.brakes, scenario.tool_frame
+        )
+        figures = stop_figures(scenario, result, report)
+        if variants:
+            failed = next((r for _, r in variants if isinstance(r, Exception)), None)
+            if failed is not None:
+                raise scenario_failure(scenario, failed)
+            figures = bounded(scenario, figures, variants)
+            record["bounds"] = dict(figures.bounds)
+        record.update(
+            status=figures.status,
+            metrics={**figures.metrics, **figures.upper},
+            holds=figures.holds,
+            flags=describe_flags(figures.flags),
+            chain={k: v for k, v in figures.chain.items() if k in ("safeguard", "definition")},
+        )
+        record["assumptions"] = list(scenario.robot.assumptions) + list(scenario.assumptions)
+        record["tool_frame"] = scenario.tool_frame
+        record["timing"]["simulate"] = float(result.wall_time)
+        record["rhs_evals"] = int(result.rhs_evals)
+    except Exception as exc:
+        _record_error(record, exc)
+    record["timing"]["report"] = time.perf_counter() - begin
+
+
+def _record_error(record: dict[str, Any], exc: Exception) -> None:
+    """A failed case: its one-line message (an internal error says so)."""
+    if isinstance(exc, VtmError):
+        message = str(exc)
+    else:  # a bug: recorded like a failure, so the study goes on
+        message = f"internal error ({type(exc).__name__}: {exc})"
+    record.update(status=f"error: {_one_line(message)}", metrics={})
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+#: Keys every stored case record has, and the JSON types of their values.
+RECORD_KEYS: dict[str, type | tuple[type, ...]] = {
+    "case": str,
+    "study": str,
+    "index": int,
+    "values": dict,
+    "status": str,
+    "metrics": dict,
+    "timing": dict,
+    "wall_time": (int, float),
+    "checksum": str,
+}
+
+
+def seal(record: dict[str, Any]) -> str:
+    """The record as the JSON text stored, with ``checksum``: a hash of everything else.
+
+    Raises:
+        ValueError: The record holds NaN or an infinity (a record must not).
+    """
+    body = {k: v for k, v in record.items() if k != "checksum"}
+    record["checksum"] = _digest(body)
+    return json.dumps(record, indent=1, allow_nan=False) + "\n"
+
+
+def _digest(body: Mapping[str, Any]) -> str:
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def save_record(folder: Path, record: dict[str, Any]) -> None:
+    """Store one finished case in ``folder/cases``, atomically (a killed process leaves no part).
+
+    Raises:
+        OutputError: It cannot be written (naming the file and why).
+    """
+    path = folder / CASES_FOLDER / f"{record['case']}.json"
+    try:
+        text = seal(record)
+    except ValueError:  # a figure that is NaN or infinite: the case failed, it is not a result
+        kept = {k: record[k] for k in ("case", "study", "index", "values", "timing", "wall_time")}
+        record.clear()
+        record.update(kept)
+        _record_error(record, StudyError("", "", "a figure came out NaN or infinite; not a result"))
+        text = seal(record)
+    try:
+        _write_atomic(path, text)
+    except OSError as exc:
+        raise OutputError(
+            str(folder), f"cannot write the case record '{path}' ({exc.strerror or exc})"
+        ) from exc
+
+
+def check_record(record: Any, case: Case, study: str) -> str | None:
+    """Why a stored record cannot be kept for ``case`` of the study ``study`` (None if it can).
+
+    It must have the shape of :data:`RECORD_KEYS`, the case's id and axis values, the study's
+    fingerprint, finite metrics, and a checksum that matches its content.
+    """
+    if not isinstance(record, dict):
+        return "not a record (a mapping)"
+    for key, kind in RECORD_KEYS.items():
+        if not isinstance(record.get(key), kind) or isinstance(record.get(key), bool):
+            return f"'{key}' is missing or of the wrong type"
+    if record["case"] != case.id:
+        return f"it holds case {excerpt(record['case'])}"
+    if record["study"] != study:
+        return "it was computed for another study (or before it changed)"
+    body = {k: v for k, v in record.items() if k != "checksum"}
+    try:
+        if record["checksum"] != _digest(body):
+            return "its checksum does not match its content (edited or damaged)"
+    except ValueError:
+        return "it holds NaN or an infinity"
+    if _hash_values(record["values"]) != _hash_values(case.values):
+        return "its axis values are not the case's"
+    bad = [k for k, v in record["metrics"].items() if not _finite_or_none(v)]
+    if bad:
+        return f"metric {excerpt(bad[0])} is not a finite number"
+    return None
+
+
+def _hash_values(values: Mapping[str, Any]) -> str:
+    return json.dumps(values, sort_keys=True, default=str)
+
+
+def _finite_or_none(value: Any) -> bool:
+    if value is None:
+        return True
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+@dataclass
+class CaseStore:
+    """The records of a study's finished cases in ``DIR/cases``, one JSON file per case.
+
+    Attributes:
+        folder: The study's output folder.
+        study: The study.
+        records: Case id -> record, of the cases stored so far.
+        rejected: Stored records that were not kept (file name -> why); they are run again.
+        fresh: Whether :meth:`open` started the folder (it held no study before).
+    """
+
+    folder: Path
+    study: Study
+    records: dict[str, dict[str, Any]] = field(default_factory=dict)
+    rejected: dict[str, str] = field(default_factory=dict)
+    fresh: bool = False
+
+    @property
+    def cases_folder(self) -> Path:
+        """Where the case records are."""
+        return self.folder / CASES_FOLDER
+
+    def open(self, cases: Sequence[Case]) -> None:
+        """Create the folder, or reopen it: refuse another study's results, check the records.
+
+        A record that is not its case's (see :func:`check_record`) is not kept: its case is
+        computed again (:attr:`rejected` says which and why).
+
+        Args:
+            cases: The study's cases; only their records are loaded.
+
+        Raises:
+            StudyError: The folder holds the results of another study, or of this study
+                before its file or its base scenario changed, or case records without a
+                ``study.json``; or ``study.json`` cannot be read.
+            OutputError: The folder cannot be created or written.
+        """
+        state_path = self.folder / STATE_FILE
+        self._check_state(state_path)
+        target = self.cases_folder
+        try:
+            self.cases_folder.mkdir(parents=True, exist_ok=True)
+            if not state_path.is_file():
+                target = state_path
+                state = {"study": self.study.source, "fingerprint": self.study.fingerprint}
+                _write_atomic(state_path, json.dumps(state, indent=2) + "\n")
+                self.fresh = True
+        except OSError as exc:
+            raise OutputError(
+                str(self.folder), f"cannot write '{target}' ({exc.strerror or exc})"
+            ) from exc
+        for partial in self.cases_folder.glob(".*.json.*"):  # a killed writer's temporary file
+            partial.unlink(missing_ok=True)
+        for case in cases:
+            path = self.cases_folder / f"{case.id}.json"
+            if not os.path.lexists(path):
+                continue
+            try:
+                record = json.loads(read_text(path, StudyError))
+            except (StudyError, ValueError) as exc:
+                self.rejected[path.name] = f"cannot be read ({_one_line(str(exc))[:120]})"
+                continue
+            reason = check_record(record, case, self.study.fingerprint)
+            if reason is None:
+                self.records[case.id] = record
+            else:
+                self.rejected[path.name] = reason
+
+    def _check_state(self, state_path: Path) -> None:
+        """Refuse a folder that holds another study's results, or a damaged ``study.json``."""
+        changed = (
+            f"'{self.folder}' holds results of a different study (this study file or its base "
+            "scenario changed since they were computed); to start over, delete that folder or "
+            "choose another --out"
+        )
+        if not os.path.lexists(state_path):
+            if any(self.cases_folder.glob("*.json")):
+                raise StudyError(
+                    self.study.source,
+                    "",
+                    f"'{self.cases_folder}' holds case records but '{state_path}' is missing, "
+                    "so which study they belong to is unknown; to start over, delete that "
+                    "folder or choose another --out",
+                )
+            return
+        try:
+            state = json.loads(read_text(state_path, StudyError))
+        except (StudyError, ValueError) as exc:
+            reason = exc.problem if isinstance(exc, StudyError) else f"not JSON: {exc}"
+            raise StudyError(
+                str(state_path),
+                "",
+                f"cannot read this study's state file ({_one_line(reason)[:160]}); delete the "
+                "folder to start over, or choose another --out",
+            ) from exc
+        if not isinstance(state, dict) or not isinstance(state.get("fingerprint"), str):
+            raise StudyError(
+                str(state_path),
+                "fingerprint",
+                "the state file has no fingerprint (it is damaged); delete the folder to start "
+                "over, or choose another --out",
+            )
+        if state["fingerprint"] != self.study.fingerprint:
+            raise StudyError(self.study.source, "", changed)
+
+    def discard(self) -> None:
+        """Remove what this run wrote into a folder it started (a study that cannot run)."""
+        if not self.fresh:
+            return
+        for case in self.records:
+            (self.cases_folder / f"{case}.json").unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            self.cases_folder.rmdir()
+        (self.folder / STATE_FILE).unlink(missing_ok=True)
+
+    def save(self, record: dict[str, Any]) -> None:
+        """Store one finished case (see :func:`save_record`)."""
+        save_record(self.folder, record)
+        self.records[record["case"]] = record
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename.
+
+    A killed process leaves the old file or the new one, never a part (and perhaps a
+    temporary ``.NAME.*`` file, which is never read). There is no fsync: the page cache
+    outlives the process, and a case lost to a power cut is run again.
+    """
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes it private; follow the umask instead
+        with os.fdopen(fd, "w") as file:
+            file.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()
+
+
+def default_workers() -> int:
+    """The number of cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def run_study(
+    study: Study,
+    out: str | Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    engine: str = "batched",
+) -> StudyOutput:
+    """Run the cases of ``study`` not yet stored in ``out``, then write its results there.
+
+    Args:
+        study: The study.
+        out: Output folder; created if missing, reused (resumed) if it holds this study.
+        workers: Processes on this machine; all cores by default. Ignored with a scheduler.
+        scheduler: Address of a Dask scheduler (``tcp://host:port``) to send the cases to.
+        progress: Called with (cases done, cases in all) after each case, and once at the
+            start with the cases already stored.
+        engine: ``batched``: each worker advances its cases together, up to
+            :data:`BATCH_CASES` at a time (:mod:`vtm_pin.core.batch`; cases it cannot take run
+            on the scalar engine, counted in the summary); ``scalar``: one case at a time.
+
+    Returns:
+        The table, summary and files written.
+
+    Raises:
+        StudyError: ``out`` holds another study's results, the scheduler cannot be used,
+            or the engine is unknown.
+        OutputError: ``out`` cannot be written.
+        KeyboardInterrupt: Interrupted; the cases finished so far are stored.
+    """
+    out = Path(out)
+    if engine not in ENGINES:
+        raise StudyError(
+            "command line",
+            "--engine",
+            f"'{engine}' is not an engine; allowed: {', '.join(ENGINES)}",
+        )
+    client = connect(scheduler) if scheduler is not None else None  # before anything is written
+    try:
+        with output_lock(out):
+            return _run_held(study, out, workers, (client, scheduler), progress, engine)
+    finally:
+        if client is not None:
+            close(client)
+
+
+def _run_held(
+    study: Study,
+    out: Path,
+    workers: int | None,
+    cluster: tuple[Any | None, str | None],
+    progress: Callable[[int, int], None] | None,
+    engine: str,
+) -> StudyOutput:
+    """:func:`run_study` once it holds ``out`` (``cluster``: the Dask client and its address)."""
+    client, where = cluster
+    cases = study.cases()
+    store = CaseStore(out, study)
+    store.open(cases)
+    _warn_rejected(store)
+    todo = [case for case in cases if case.id not in store.records]
+    if progress is not None:
+        progress(len(cases) - len(todo), len(cases))
+    base_dir = str(study.scenario.parent)
+    tasks = [
+        CaseTask(
+            study.base, base_dir, str(study.scenario), study.scenario.stem, case, study.fingerprint
+        )
+        for case in todo
+    ]
+    begin_cases = time.perf_counter()
+    local = client is None  # local workers store each case themselves, as it finishes
+    # closing: an interruption ends the workers at once, before the stored cases are counted
+    with contextlib.closing(
+        _execute(tasks, workers or default_workers(), client, engine, out)
+    ) as run:
+        for record in run:
+            if local:
+                store.records[record["case"]] = record
+            else:
+                begin = time.perf_counter()
+                store.save(record)
+                record["timing"]["write"] = time.perf_counter() - begin  # this run's
+            if progress is not None:
+                progress(len(store.records), len(cases))
+    records = [store.records[case.id] for case in cases]
+    try:
+        _refuse_all_failed(study, records)
+    except StudyError:
+        store.discard()  # a study that cannot run leaves nothing
+        raise
+    count = workers or default_workers()
+    executor = f"dask {where}" if client is not None else f"{count} worker{'s' * (count > 1)}"
+    begin_outputs = time.perf_counter()
+    output = _finish(study, out, records, f"{executor}, {engine} engine", len(tasks))
+    phases = {"cases": begin_outputs - begin_cases, "outputs": time.perf_counter() - begin_outputs}
+    _warn_flagged(records, out)
+    return dataclasses.replace(output, phases=phases)
+
+
+def _warn_rejected(store: CaseStore) -> None:
+    """One warning line if stored records were not kept (they are computed again)."""
+    if store.rejected:
+        name, reason = next(iter(store.rejected.items()))
+        more = len(store.rejected) - 1
+        warnings.warn(
+            f"{len(store.rejected)} stored case record(s) in '{store.cases_folder}' not kept, "
+            f"computed again ({name}: {reason}{f'; and {more} more' if more else ''})",
+            VtmWarning,
+            stacklevel=4,
+        )
+
+
+def _warn_flagged(records: Sequence[Mapping[str, Any]], out: Path) -> None:
+    """One warning line if some cases' figures rest on broken assumptions (flags)."""
+    kinds: dict[str, int] = {}
+    flagged = 0
+    for record in records:
+        if record.get("flags"):
+            flagged += 1
+            for flag in record["flags"]:
+                kinds[flag["kind"]] = kinds.get(flag["kind"], 0) + 1
+    if flagged:
+        counts = ", ".join(f"{n} {kind}" for kind, n in kinds.items())
+        warnings.warn(
+            f"{flagged} of {len(records)} cases are flagged ({counts}): their figures rest on "
+            f"broken assumptions; see {out / 'report.html'}, section Flagged cases",
+            VtmWarning,
+            stacklevel=3,
+        )
+
+
+def _refuse_all_failed(study: Study, records: Sequence[Mapping[str, Any]]) -> None:
+    """A study none of whose cases ran is a broken study, not a result: say why, in one line."""
+    statuses = [str(r["status"]) for r in records]
+    if statuses and all(s.startswith("error") for s in statuses):
+        raise StudyError(
+            study.source,
+            "",
+            f"all {len(statuses)} cases failed; the first: {statuses[0].removeprefix('error: ')}",
+        )
+
+
+#: Most cases a worker advances together with the batched engine (a batch's traces are held
+#: in memory until it ends).
+BATCH_CASES = 2500
+
+
+def _chunks(tasks: Sequence[CaseTask], workers: int, engine: str) -> list[list[CaseTask]]:
+    """The tasks in the pieces a worker runs at once: single cases, or batches.
+
+    Batches are a quarter of a worker's share (at most :data:`BATCH_CASES`): the workers stay
+    evenly loaded, and an interruption loses at most the batches under way.
+    """
+    size = 1 if engine == "scalar" else min(BATCH_CASES, math.ceil(len(tasks) / (4 * workers)))
+    size = max(size, 1)
+    return [list(tasks[i : i + size]) for i in range(0, len(tasks), size)]
+
+
+def _execute(
+    tasks: Sequence[CaseTask], workers: int, client: Any | None, engine: str, out: Path
+) -> Generator[dict, None, None]:
+    """Run the tasks; yields each record as soon as its piece is done (in any order).
+
+    Local workers (this process, or a pool on this machine) store each record in ``out`` as
+    its case finishes; a cluster's records are stored by the caller. Closing the generator
+    ends the workers at once.
+    """
+    if client is not None:
+        chunks = _chunks(tasks, 4 * dask_workers(client), engine) if tasks else []
+        yield from on_dask(chunks, functools.partial(run_cases, engine=engine), client)
+        return
+    work = functools.partial(run_cases, engine=engine, store=str(out))
+    chunks = _chunks(tasks, workers, engine)
+    if workers <= 1 or len(chunks) <= 1:
+        for chunk in chunks:
+            yield from work(chunk)
+        return
+    yield from on_pool(chunks, work, min(workers, len(chunks)))
+
+
+def _finish(
+    study: Study, out: Path, records: list[dict[str, Any]], executor: str, computed: int
+) -> StudyOutput:
+    """Build the table and summary, and write them with the report into ``out``."""
+    from .report import write_study_report
+
+    table = results_table(study, records)
+    summary = build_study_summary(study, records, executor)
+
+    def write(staging: Path) -> None:
+        table.to_parquet(staging / "results.parquet", index=False)
+        table.to_csv(staging / "results.csv", index=False)
+        (staging / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+        write_study_report(staging, summary, table)
+
+    files = write_staged(out, write)
+    return StudyOutput(study, table, summary, tuple(files), computed)
+
+
+def results_table(study: Study, records: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
+    """The results table: one row per case, in study order (columns: :data:`DEFINITIONS`)."""
+    import pandas as pd
+
+    joints: dict[str, None] = {}
+    for record in records:
+        joints.update(
+            dict.fromkeys(
+                k.split(".", 1)[1]
+                for k in record["metrics"]
+                if "." in k and not k.endswith("_upper")
+            )
+        )
+    uppers = {k for r in records for k in r["metrics"] if k.endswith("_upper")}
+    columns = [c for m in METRICS for c in (m, f"{m}_upper") if c == m or c in uppers]
+    columns += [f"stop_time.{j}" for j in joints] + [f"stop_angle.{j}" for j in joints]
+    rows = []
+    for record in records:
+        values = {k: ("none" if v is None else v) for k, v in record["values"].items()}
+        metrics = record["metrics"]
+        ran = "holds" in record
+        rows.append(
+            {
+                "case": record["case"],
+                **values,
+                "status": record["status"],
+                "holds": bool(record["holds"]) if ran else None,
+                "flags": ";".join(f["kind"] for f in record.get("flags", [])),
+                **{c: _float(metrics.get(c)) for c in columns},
+                "wall_time": record["wall_time"],
+            }
+        )
+    head = ["case", *study.axes, "status", "holds", "flags"]
+    table = pd.DataFrame(rows, columns=[*head, *columns, "wall_time"])
+    for name in study.axes:  # one type per column, as parquet needs
+        kinds = {type(v) for v in table[name]}
+        if len(kinds) > 1 and not kinds <= {int, float}:
+            table[name] = table[name].astype(str)
+    return table
+
+
+def _float(value: Any) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def build_study_summary(
+    study: Study, records: Sequence[Mapping[str, Any]], executor: str
+) -> dict[str, Any]:
+    """The JSON-ready ``summary.json`` of a study (keys documented in the README)."""
+    statuses = [str(r["status"]) for r in records]
+    counts = {
+        "cases": len(records),
+        "ok": statuses.count("ok"),
+        "not_stopped": statuses.count("not_stopped"),
+        "error": sum(s.startswith("error") for s in statuses),
+        "cannot_hold": sum(r.get("holds") is False for r in records),
+        "flagged": sum(bool(r.get("flags")) for r in records),
+    }
+    timing = [r["timing"] for r in records if "timing" in r]
+    split = {
+        part: statistics.median(t[part] for t in timing if part in t)
+        if any(part in t for t in timing)
+        else None
+        for part in ("build", "simulate", "report", "write")
+    }
+    flagged = [r for r in records if r.get("flags")]
+    chains = [r["chain"] for r in records if r.get("chain")]
+    return {
+        "study": {
+            "name": study.name,
+            "file": study.source,
+            "description": study.description,
+            "scenario": str(study.scenario),
+            "robot": str(study.base.get("robot", "")),
+            "tool_frame": next((str(r["tool_frame"]) for r in records if "tool_frame" in r), ""),
+            "mode": study.mode,
+            "samples": study.samples,
+            "seed": study.seed if study.samples is not None else None,
+            "axes": study.describe_axes(),
+            "fingerprint": study.fingerprint,
+        },
+        "counts": counts,
+        "executor": executor,
+        "engines": _engine_counts(records),
+        "versions": _versions(),
+        "assumptions": _common_assumptions(records),
+        "axes": {name: _axis_text(name) for name in study.axes},
+        "definitions": DEFINITIONS,
+        "units": {**METRICS, "wall_time": "s"},
+        "timing_median": split,
+        "wall_time_total": sum(float(r["wall_time"]) for r in records),
+        "stopping_chain": chains[0] if chains else {},
+        "bounds": next((r["bounds"] for r in records if r.get("bounds")), {}),
+        "flagged": [
+            {"case": r["case"], "flags": r["flags"]} for r in flagged[:MAX_FLAGGED_SUMMARY]
+        ],
+    }
+
+
+def _engine_counts(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """How many cases each engine ran, and why the batched engine left cases to the scalar."""
+    engines = [str(r.get("engine", "")) for r in records if r.get("engine")]
+    reasons: dict[str, int] = {}
+    for record in records:
+        if record.get("fallback"):
+            reasons[str(record["fallback"])] = reasons.get(str(record["fallback"]), 0) + 1
+    split = [r["engine_split"] for r in records if "engine_split" in r]
+    return {
+        "batched": engines.count("batched"),
+        "scalar": engines.count("scalar"),
+        "fallbacks": dict(sorted(reasons.items())),
+        "batched_split_total": {part: sum(s.get(part, 0.0) for s in split) for part in PARTS},
+        "rhs_evals_total": sum(int(r.get("rhs_evals", 0)) for r in records),
+    }
+
+
+def _axis_text(name: str) -> str:
+    from .cases import NAMED_AXES
+
+    if name in NAMED_AXES:
+        return NAMED_AXES[name][1]
+    return f"scenario key {name} (units as in the scenario key table)"
+
+
+def _common_assumptions(records: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The assumptions stated by every finished case, then those that vary between cases.
+
+    A statement whose numbers differ between cases (the payload's mass, the Annex-B speed and
+    pose) is listed once, its numbers shown as "…", after "Per case:".
+    """
+    lists = [r["assumptions"] for r in records if "assumptions" in r]
+    if not lists:
+        return []
+    common = [line for line in lists[0] if all(line in other for other in lists[1:])]
+    varying = dict.fromkeys(line for other in lists for line in other if line not in common)
+    groups: dict[str, list[str]] = {}
+    for line in varying:
+        groups.setdefault(_NUMBER.sub("…", line), []).append(line)
+    templates = [_template(lines) for lines in groups.values()]
+    shown = templates[:MAX_TEMPLATES]
+    common += [f"Per case: {template}" for template in shown]
+    if len(templates) > len(shown):
+        common.append(
+            f"{len(templates) - len(shown)} further per-case statements are in each case's "
+            "record, cases/<case>.json."
+        )
+    return common
+
+
+def _template(lines: Sequence[str]) -> str:
+    """Statements that differ only in numbers, as one: the numbers that differ shown as "…"."""
+    numbers = [_NUMBER.findall(line) for line in lines]
+    parts = _NUMBER.split(lines[0])
+    out = [parts[0]]
+    for k, part in enumerate(parts[1:]):
+        values = {found[k] for found in numbers}
+        out += [numbers[0][k] if len(values) == 1 else "…", part]
+    return "".join(out)
+
+
+#: A number in a statement (for grouping the statements that differ only in their numbers).
+_NUMBER = re.compile(r"(?<![\w.\-])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?(?![\w\-])")
+#: Most per-case statement templates listed in a study's summary.
+MAX_TEMPLATES = 30
+
+
+def _versions() -> dict[str, str]:
+    names = (
+        "vtm_pin",
+        "pin",
+        "example-robot-data",
+        "numpy",
+        "scipy",
+        "pandas",
+        "pyarrow",
+        "distributed",
+    )
+    found = {"python": platform.python_version(), "platform": sys.platform}
+    for name in names:
+        try:
+            found[name] = version(name)
+        except PackageNotFoundError:
+            continue
+    return found
+
+
+def format_study(output: StudyOutput, elapsed: float) -> str:
+    """A few lines on a finished study: counts, failures and time (for the command line)."""
+    counts = output.summary["counts"]
+    stored = counts["cases"] - output.computed
+    lines = [
+        f"study {output.study.name}: {counts['cases']} cases: {counts['ok']} ok, "
+        f"{counts['not_stopped']} not stopped, {counts['error']} failed "
+        f"({output.computed} computed now, {stored} stored before; {output.summary['executor']}; "
+        f"{elapsed:.1f} s)"
+    ]
+    engines = output.summary.get("engines", {})
+    for reason, count in engines.get("fallbacks", {}).items():
+        lines.append(f"  {count} case{'s' if count > 1 else ''} on the scalar engine: {reason}")
+    failed = output.table[output.table["status"] != "ok"]
+    for _, row in failed.head(5).iterrows():
+        lines.append(f"  case {row['case']}: {row['status']}")
+    if len(failed) > 5:
+        lines.append(f"  ... and {len(failed) - 5} more in results.csv")
+    return "\n".join(lines)
