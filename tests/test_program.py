@@ -25,6 +25,8 @@ from vtm_pin.exceptions import InputError
 from vtm_pin.program import (
     PROGRAMS_DIR,
     Program,
+    check_program,
+    find_program,
     generate_program,
     read_program,
     write_program,
@@ -226,6 +228,12 @@ def test_scaled_stretches_time_and_slows_velocities():
     np.testing.assert_array_equal(slow.q, program.q)
     np.testing.assert_allclose(slow.v, 0.25 * program.v, rtol=1e-15)
     assert "speed override 0.25" in slow.velocity_method
+    check_program(slow, robot("ur10"))  # checked as given velocities: consistent with q
+    # Velocities 4 x too fast for the stretched motion: at 0.08 s steps, the default 50 rad/s^2
+    # allows 50 x 0.08^2 / 4 = 0.08 rad between q and the integrated v; 2 rad/s^2, 3.2 mrad.
+    wrong = Program(UR_JOINTS, slow.t, slow.q, program.v, "made", "x")
+    with pytest.raises(InputError, match="v_ columns must be the positions' time derivative"):
+        check_program(wrong, robot("ur10"), acceleration_limit=2.0)
     mid = 1.0 + 0.731  # between samples: the same place, a quarter of the speed
     q_slow, v_slow = slow.state_at(1.0 + 4 * 0.731)
     q_fast, v_fast = program.state_at(mid)
@@ -512,6 +520,18 @@ def test_shipped_program_is_made_by_its_recipe():
     np.testing.assert_allclose(shipped.v, made.v, rtol=0, atol=1e-7)
     comment = [line[2:] for line in SHIPPED.read_text().splitlines() if line.startswith("# ")]
     assert comment == _comment().splitlines()
+
+
+def test_find_program_takes_a_path_or_a_shipped_name(tmp_path):
+    assert find_program("ur10_pick_place") == SHIPPED
+    assert find_program("ur10_pick_place.csv") == SHIPPED
+    mine = tmp_path / "mine.csv"
+    assert find_program(mine) == mine  # not there: reading it will say so
+    with pytest.raises(InputError) as info:
+        find_program("ur10_pick")
+    assert str(info.value) == (
+        "ur10_pick: no such file, and not the name of a shipped program (ur10_pick_place)"
+    )
 
 
 def test_init_copies_the_shipped_program(tmp_path, capsys):

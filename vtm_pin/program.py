@@ -8,7 +8,8 @@ line naming the row and the column, what is not a motion the robot can run:
 
 * missing, unknown or duplicate columns (other columns are refused, not ignored, so that a
   misspelt joint is not silently dropped; the message lists the allowed names);
-* cells that are not finite numbers, time that does not increase strictly, fewer than 2 rows,
+* cells that are not finite numbers, time that does not increase strictly (it may start
+  anywhere; :meth:`Program.scaled` keeps the start), fewer than 2 rows,
   more than :data:`MAX_ROWS` rows, files larger than :data:`MAX_PROGRAM_BYTES`;
 * positions outside the joint limits, velocities above the velocity limits of the robot's
   model (URDF ``<limit velocity>``), accelerations above ``acceleration_limit`` (default
@@ -87,6 +88,31 @@ def _programs_dir() -> Path:
 
 #: Folder of the shipped programs (``ur10_pick_place.csv``).
 PROGRAMS_DIR = _programs_dir()
+
+
+def find_program(spec: str | Path) -> Path:
+    """The program file ``spec`` names: an existing path, else a shipped program's name.
+
+    A bare name (``ur10_pick_place``, or with ``.csv``) that is not a file names a program in
+    :data:`PROGRAMS_DIR`; any other path is returned as it is (reading it says what is wrong).
+
+    Raises:
+        InputError: ``spec`` is a bare name that is neither a file nor a shipped program; the
+            message lists the shipped ones.
+    """
+    path = Path(spec)
+    try:
+        if path.exists() or len(path.parts) != 1 or path.suffix not in ("", ".csv"):
+            return path
+        shipped = PROGRAMS_DIR / f"{path.stem}.csv"
+        if shipped.is_file():
+            return shipped
+    except (OSError, ValueError):  # a name too long for a path, or with a NUL in it
+        return path
+    names = ", ".join(sorted(p.stem for p in PROGRAMS_DIR.glob("*.csv"))) or "none"
+    raise InputError(
+        excerpt(str(spec)), "", f"no such file, and not the name of a shipped program ({names})"
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -263,7 +289,10 @@ def read_program(
 def check_program(program: Program, robot: Robot, acceleration_limit: Limit = None) -> None:
     """Check a program's positions, velocities and accelerations against ``robot``'s limits.
 
-    The checks of :func:`read_program` after the file is parsed (see there).
+    The checks of :func:`read_program` after the file is parsed (see there). Velocities
+    differentiated by the spline (``velocity_method`` starting as :func:`read_program` states
+    it) are named by their joint's column and their accelerations are the spline's; any
+    other velocities (a file's, toppra's, scaled ones) are checked as given ``v_`` columns.
 
     Raises:
         InputError: A sample breaks a limit; names ``program.source``, the row and column.
@@ -272,7 +301,7 @@ def check_program(program: Program, robot: Robot, acceleration_limit: Limit = No
     _check_time(t, source)
     model = robot.model
     units = _units(robot)
-    given = program.velocity_method == _FILE_METHOD
+    given = not program.velocity_method.startswith(_SPLINE_METHOD)
     for j, joint in enumerate(robot.joints):
         low, high = float(model.lowerPositionLimit[j]), float(model.upperPositionLimit[j])
         slack = LIMIT_RTOL * max(1.0, abs(low), abs(high))
@@ -626,7 +655,7 @@ def generate_program(
         stretch *= ratio * (1 + 1e-9)
     method = "from toppra's time-optimal parametrisation (its trajectory's derivative)"
     program = Program(robot.joints, t, q, v, source, method)
-    check_program(replace(program, velocity_method=_FILE_METHOD), robot, alimit)
+    check_program(program, robot, alimit)
     return program
 
 
