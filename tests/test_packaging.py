@@ -26,7 +26,7 @@ import tomllib
 from conftest import ROOT, SCENARIOS
 
 #: What a wheel is built from: the build configuration and what it names.
-SOURCES = ["pyproject.toml", "README.md", "vtm_pin", "robots", "scenarios", "studies"]
+SOURCES = ["pyproject.toml", "README.md", "vtm_pin", "robots", "scenarios", "studies", "programs"]
 #: Longest time one step may take [s]: a wheel build, an install, a command.
 STEP_TIMEOUT = 600
 
@@ -122,6 +122,14 @@ def check_installed_wheel(python: Path, elsewhere: Path) -> None:
         [str(vtm_pin), "run", "mine/ur5_cb3_annex_b.yaml", "--quiet", "--no-plots"], cwd=elsewhere
     )
     assert (elsewhere / "results" / "ur5_cb3_annex_b" / "summary.json").is_file()
+    # the shipped program is package data of the wheel, and init copies it
+    run_checked([str(vtm_pin), "init", "program", "ur10_pick_place", "--to", "p"], cwd=elsewhere)
+    assert (elsewhere / "p" / "ur10_pick_place.csv").read_bytes() == (
+        ROOT / "programs" / "ur10_pick_place.csv"
+    ).read_bytes()
+    code = "import vtm_pin.scene.program as p; print(p.PROGRAMS_DIR)"
+    folder = Path(run_checked([str(python), "-c", code], cwd=elsewhere).stdout.strip())
+    assert folder.resolve().is_relative_to(env_root) and (folder / "ur10_pick_place.csv").is_file()
 
 
 def test_pyproject_lists_every_package():
@@ -135,6 +143,7 @@ def test_pyproject_lists_every_package():
         "vtm_pin.robots": "robots",
         "vtm_pin.scenarios": "scenarios",
         "vtm_pin.studies": "studies",
+        "vtm_pin.programs": "programs",
     }
     assert set(config["packages"]) == found | set(data)
     assert config["package-dir"] == data

@@ -1,4 +1,4 @@
-"""Copies of the shipped scenarios, studies and robot files, to start from (``vtm-pin init``).
+"""Copies of the shipped scenarios, studies, robots and programs, to start from (``vtm-pin init``).
 
 A copy must work from its new folder: a study's ``scenario: ../scenarios/x.yaml`` becomes the
 shipped scenario's name (which :func:`vtm_pin.study.cases.load_study` accepts), a scenario's
@@ -17,6 +17,7 @@ from pathlib import Path
 from .exceptions import InputError, OutputError, excerpt
 from .files.inputs import read_text, read_yaml
 from .physics.robot import ROBOTS_DIR, list_example_robots, load_robot
+from .scene.program import PROGRAMS_DIR
 from .scene.scenario import SCENARIOS_DIR
 from .schemas import schema_file
 from .study.cases import STUDIES_DIR
@@ -26,13 +27,17 @@ KINDS: Mapping[str, Path] = {
     "scenario": SCENARIOS_DIR,
     "study": STUDIES_DIR,
     "robot": ROBOTS_DIR,
+    "program": PROGRAMS_DIR,
 }
+
+#: The file suffixes of each kind's shipped files (``.yaml`` for kinds not listed).
+_SUFFIXES: Mapping[str, tuple[str, ...]] = {"robot": (".urdf", ".yaml"), "program": (".csv",)}
 
 
 def shipped_names(kind: str) -> list[str]:
     """The shipped names of ``kind`` (file stems; a robot's URDF and data file count once)."""
     folder = KINDS[kind]
-    suffixes = (".urdf", ".yaml") if kind == "robot" else (".yaml",)
+    suffixes = _SUFFIXES.get(kind, (".yaml",))
     return sorted({p.stem for p in folder.iterdir() if p.suffix in suffixes})
 
 
@@ -52,14 +57,16 @@ def init_files(kind: str, name: str, folder: Path) -> list[Path]:
             "command line", "KIND", f"'{excerpt(kind)}' is not one of {', '.join(KINDS)}"
         )
     names = shipped_names(kind)
-    stem = name.removesuffix(".yaml").removesuffix(".urdf")
+    stem = name.removesuffix(".yaml").removesuffix(".urdf").removesuffix(".csv")
     if stem not in names:
         raise InputError(
             "command line",
             "NAME",
             f"'{excerpt(name)}' is not a shipped {kind}; the shipped ones are: {', '.join(names)}",
         )
-    copies = {"scenario": _scenario, "study": _study, "robot": _robot}[kind](stem)
+    copies = {"scenario": _scenario, "study": _study, "robot": _robot, "program": _program}[kind](
+        stem
+    )
     targets = [folder / file for file in copies]
     for target in targets:
         if target.exists() or target.is_symlink():
@@ -124,3 +131,9 @@ def _robot(name: str) -> dict[str, str]:
     if data.is_file():
         copies[data.name] = read_text(data, InputError)
     return copies
+
+
+def _program(name: str) -> dict[str, str]:
+    """The program's CSV file, as it is (it names no other file)."""
+    path = PROGRAMS_DIR / f"{name}.csv"
+    return {path.name: read_text(path, InputError)}

@@ -1,0 +1,1 @@
+"""Programs shipped with vtm_pin (joint trajectories as CSV), read as package data."""
