@@ -61,6 +61,14 @@ from .scene.scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scen
 from .shipped import KINDS, init_files, shipped_names
 from .study.cases import STUDIES_DIR, Study, find_study, load_study
 from .study.runner import CASES_FOLDER, format_study, run_study
+from .study.sweep import (
+    DEFAULT_EVERY,
+    DEFAULT_TOLERANCE,
+    SEARCH_FIGURES,
+    format_program,
+    load_program_study,
+    run_program,
+)
 
 #: Exit codes: success, a user error (bad scenario, robot or option value), bad usage of the
 #: command line, interrupted by Ctrl-C. Nothing is written unless the code is EXIT_OK.
@@ -233,6 +241,7 @@ def _parser() -> argparse.ArgumentParser:
     _output_options(run)
     run.set_defaults(func=_run)
     _study_parser(sub, formatter)
+    _program_parser(sub, formatter)
     _calibrate_parser(sub, formatter)
 
     listing = sub.add_parser(
@@ -363,6 +372,140 @@ def _study_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
     )
     _output_options(study)
     study.set_defaults(func=_study)
+
+
+def _program_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
+    program = sub.add_parser(
+        "program",
+        help="stop the robot anywhere along its own program: distances, S and S_p, override",
+        description=_wrap(
+            "Trigger the base scenario's stop at instants along PROGRAM (a CSV or Parquet "
+            "file: time [s] and one column per joint [rad], optional v_<joint> [rad/s]; or a "
+            "shipped program's name): every --every seconds of program time, plus the "
+            "instants of peak joint speed and peak tool speed. Each trigger is a study case "
+            "that starts from the program's q and v there (v times each --override F). "
+            "Writes program.csv (one row per trigger), program.png, the swept region "
+            "(swept.png, swept.npz), program.html and the study's files into --out. With "
+            "--within D: the largest override F in (0, 1] whose every trigger keeps --figure "
+            "(with its upper bound where the scenario asks for bounds) within D metres."
+        ),
+        epilog=_EPILOG,
+        formatter_class=formatter,
+    )
+    program.add_argument("program", metavar="PROGRAM", help="program file, or a shipped name")
+    program.add_argument(
+        "--scenario",
+        required=True,
+        metavar="BASE",
+        help="base scenario (file or shipped name): robot, payload, brakes, stop at t = 0, "
+        "safeguard, separation inputs, bounds",
+    )
+    program.add_argument(
+        "--out",
+        type=_folder,
+        default=None,
+        metavar="DIR",
+        help="output folder (default: results/<program name>); reused to resume",
+    )
+    program.add_argument(
+        "--every",
+        type=_positive_float,
+        default=DEFAULT_EVERY,
+        metavar="DT",
+        help=f"spacing of the triggers [s] of program time (default {DEFAULT_EVERY})",
+    )
+    program.add_argument(
+        "--override",
+        type=_positive_float,
+        nargs="+",
+        default=[1.0],
+        metavar="F",
+        help="speed overrides in (0, 1] [-] (default 1): the program's velocities times F",
+    )
+    program.add_argument(
+        "--within",
+        type=_positive_float,
+        default=None,
+        metavar="D",
+        help="allowed distance [m]: find the largest override keeping --figure within it",
+    )
+    program.add_argument(
+        "--figure",
+        choices=tuple(SEARCH_FIGURES),
+        default="ssm_distance",
+        help="the figure --within bounds (default ssm_distance, S_p of ISO/TS 15066)",
+    )
+    program.add_argument(
+        "--tolerance",
+        type=_positive_float,
+        default=DEFAULT_TOLERANCE,
+        metavar="DF",
+        help=f"bisection tolerance on F [-] (default {DEFAULT_TOLERANCE})",
+    )
+    program.add_argument("--engine", choices=("batched", "scalar"), default="batched")
+    where = program.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None, metavar="N")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS")
+    _output_options(program)
+    program.set_defaults(func=_program)
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{excerpt(text)}' is not a number") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"{value} must be a finite number > 0")
+    return value
+
+
+def _program(args: argparse.Namespace) -> int:
+    study = load_program_study(
+        args.program, args.scenario, every=args.every, overrides=args.override
+    )
+    out = args.out if args.out is not None else Path("results") / study.name
+    try:
+        check_output_folder(out)
+    except OutputError as exc:
+        raise StudyError("command line", "--out", exc.problem) from exc
+    show = not (args.quiet or args.json) and sys.stderr.isatty()
+    bar = tqdm(desc=study.name, unit="case", file=sys.stderr, disable=not show, smoothing=0.1)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    begin = time.perf_counter()
+    try:
+        output = run_program(
+            study,
+            out,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            progress=progress,
+            engine=args.engine,
+            within=args.within,
+            figure=args.figure,
+            tolerance=args.tolerance,
+        )
+    except KeyboardInterrupt:
+        forget_interrupt()
+        bar.close()
+        print(
+            f"vtm-pin: interrupted; the finished cases are stored in {out}; run the same "
+            "command again to continue",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
+    finally:
+        bar.close()
+    if args.json:
+        print(json.dumps(output.summary, indent=2, allow_nan=False))
+    elif not args.quiet:
+        print(format_program(output, time.perf_counter() - begin))
+        print(f"wrote {out}/: {', '.join(output.files)}")
+    return EXIT_OK
 
 
 def _calibrate_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:

@@ -34,7 +34,7 @@ import itertools
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -131,11 +131,15 @@ class Case:
         id: Stable id: a hash of the axis values (and, in sampled studies, the draw's index).
         index: Position in the study.
         values: Axis name -> value, in the study's axis order.
+        settings: Scenario key paths the case sets besides its axes (a program trigger's
+            initial state). A case with settings sets only them: its values then label it
+            (table columns), they set nothing.
     """
 
     id: str
     index: int
     values: Mapping[str, Any]
+    settings: Mapping[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -568,6 +572,16 @@ def resolve_case(base: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str
             NAMED_AXES[name][0](raw, value)
         else:
             _set_path(raw, name.split("."), value)
+    return raw
+
+
+def case_scenario(base: Mapping[str, Any], case: Case) -> dict[str, Any]:
+    """The scenario (parsed YAML) of ``case``: its settings if it has any, else its values."""
+    if not case.settings:
+        return resolve_case(base, case.values)
+    raw = copy.deepcopy(dict(base))
+    for path, value in case.settings.items():
+        _set_path(raw, path.split("."), value)
     return raw
 
 

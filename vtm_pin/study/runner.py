@@ -146,7 +146,7 @@ def run_cases(
     """
     from ..outputs.figures import bound_variants
     from ..scene.scenario import build_scenario
-    from .cases import resolve_case
+    from .cases import case_scenario
 
     keep = functools.partial(_keep, None if store is None else Path(store))
     records: list[dict[str, Any]] = []
@@ -162,7 +162,7 @@ def run_cases(
         records.append(record)
         start = time.perf_counter()
         try:
-            raw = resolve_case(task.base, case.values)
+            raw = case_scenario(task.base, case)
             source = f"{task.source} (case {case.id})"
             scenario = build_scenario(
                 raw,
@@ -585,6 +585,7 @@ def run_study(
     scheduler: str | None = None,
     progress: Callable[[int, int], None] | None = None,
     engine: str = "batched",
+    outputs: bool = True,
 ) -> StudyOutput:
     """Run the cases of ``study`` not yet stored in ``out``, then write its results there.
 
@@ -598,6 +599,8 @@ def run_study(
         engine: ``batched``: each worker advances its cases together, up to
             :data:`BATCH_CASES` at a time (:mod:`vtm_pin.core.batch`; cases it cannot take run
             on the scalar engine, counted in the summary); ``scalar``: one case at a time.
+        outputs: False: store the cases only (``out/cases``), and return the table and summary
+            without writing them, the graphs or the report (a program's override search).
 
     Returns:
         The table, summary and files written.
@@ -618,7 +621,7 @@ def run_study(
     client = connect(scheduler) if scheduler is not None else None  # before anything is written
     try:
         with output_lock(out):
-            return _run_held(study, out, workers, (client, scheduler), progress, engine)
+            return _run_held(study, out, workers, (client, scheduler), progress, engine, outputs)
     finally:
         if client is not None:
             close(client)
@@ -631,6 +634,7 @@ def _run_held(
     cluster: tuple[Any | None, str | None],
     progress: Callable[[int, int], None] | None,
     engine: str,
+    outputs: bool = True,
 ) -> StudyOutput:
     """:func:`run_study` once it holds ``out`` (``cluster``: the Dask client and its address)."""
     client, where = cluster
@@ -671,6 +675,9 @@ def _run_held(
         raise
     count = workers or default_workers()
     executor = f"dask {where}" if client is not None else f"{count} worker{'s' * (count > 1)}"
+    if not outputs:
+        summary = build_study_summary(study, records, f"{executor}, {engine} engine")
+        return StudyOutput(study, results_table(study, records), summary, (), len(tasks))
     begin_outputs = time.perf_counter()
     output = _finish(study, out, records, f"{executor}, {engine} engine", len(tasks))
     phases = {"cases": begin_outputs - begin_cases, "outputs": time.perf_counter() - begin_outputs}
