@@ -31,7 +31,7 @@ from .results import SimulationResult
 from .stopping import StoppingReport
 
 #: Flags meaning the arm is not held: it collapses, or slides on once it moves.
-NOT_HELD = ("brake_cannot_hold", "brake_cannot_stop")
+NOT_HELD = ("brake_cannot_hold", "brake_cannot_stop", "drive_cannot_hold")
 #: The figures of a stop, in table order, with their units.
 METRICS = {
     "robot_stop_time": "s",
@@ -108,7 +108,10 @@ class StopFigures:
 
     @property
     def holds(self) -> bool:
-        """Whether every brake can hold the arm's weight, and stop it, throughout the stop."""
+        """Whether every brake can hold the arm's weight, and stop it, throughout the stop.
+
+        In a category-2 stop, whether the drives can hold it within their torque limit.
+        """
         return not any(f.kind in NOT_HELD for f in self.flags)
 
 

@@ -180,7 +180,8 @@ STOP_TIME_DEFINITION = (
     "overall T, which adds detection, response and latency: see stopping_chain); null if the "
     "joint still moves at the end of the run. latch_time: time from the signal until the "
     "joint's brake sticks or locks for good; in a category-1 stop the drives end the motion "
-    "before the brakes latch."
+    "before the brakes latch; in a category-2 stop no brake is signalled (the drives hold the "
+    "arm) and latch_time is null."
 )
 
 
@@ -303,7 +304,10 @@ def format_figures(figures: StopFigures) -> str:
         lines.append(f"upper bounds: {shown}")
         lines.append(f"  {figures.bounds['text']}")
     if not figures.flags:
-        lines.append("flags: none (every brake holds the load; no other joint slips)")
+        lines.append(
+            "flags: none (every brake holds the load, or in category 2 the drives; no other "
+            "joint slips)"
+        )
     lines += [f"FLAG {flag.kind}: {flag.message}" for flag in figures.flags]
     return "\n".join(lines)
 
