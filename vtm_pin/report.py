@@ -267,7 +267,8 @@ def format_figures(figures: StopFigures) -> str:
         f"signed figures: T_robot {_opt(m['robot_stop_time'], 's')} (the robot's own stop, "
         f"from the signal reaching it; NOT ISO 13855's T); tested joint "
         f"{_opt(m['stop_angle'], 'rad')} in {_opt(m['test_stop_time'], 's')}; S_s "
-        f"{_opt(m['tcp_max_displacement'], 'm')} (the tool's largest displacement); tool drop "
+        f"{_opt(m['tcp_max_displacement'], 'm')} (the tool's largest displacement); S_arm "
+        f"{_opt(m['arm_max_displacement'], 'm')} (any point of the arm); tool drop "
         f"{_opt(m['tool_drop'], 'm')}"
     ]
     guard = chain.get("safeguard")
