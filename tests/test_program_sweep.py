@@ -109,7 +109,7 @@ def test_stopping_distance_grows_with_the_override_where_the_brakes_hold(swept):
 
 def test_the_worst_trigger_is_near_peak_speed(swept):
     """The worst trigger moves the arm at least 80 % of the program's peak joint speed."""
-    _, table, summary = swept
+    _, _, summary = swept
     study = load_program_study(PROGRAM, BASE, every=1.0)
     program = study.program
     assert program is not None

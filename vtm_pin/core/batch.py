@@ -86,8 +86,10 @@ def fallback_reason(problem: Problem, integrator: object) -> str | None:
     if problem.constraints or any(e.activate for e in problem.events):
         return "frame constraints"
     stop = problem.stop
-    if stop is not None and stop.category != 0:
+    if stop is not None and stop.category == 1:
         return "category-1 stop (drives ramp the rates down)"
+    if stop is not None and stop.category == 2:
+        return "category-2 stop (drives ramp the rates down, then hold the arm)"
     if stop is not None and stop.t > 0.0:
         return "drives act before the stop signal (stop.t > 0)"
     for brake in problem.brakes:

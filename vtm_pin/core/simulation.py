@@ -269,9 +269,10 @@ def simulate(
 
     Without a stop no joint torque acts (drives off). With a stop, the drives hold the joint
     rates constant until the signal, then act as its category says, and each brake engages
-    after its delay (see :mod:`vtm_pin.physics.stop` and :mod:`vtm_pin.physics.brakes`). Frame
-    constraints active from t = 0 get q0 and v0 projected onto them first, with a
-    :class:`VtmWarning` if that moves them by more than 1e-6.
+    after its delay, never in category 2, whose drives hold the arm (see
+    :mod:`vtm_pin.physics.stop` and :mod:`vtm_pin.physics.brakes`). Frame constraints active
+    from t = 0 get q0 and v0 projected onto them first, with a :class:`VtmWarning` if that
+    moves them by more than 1e-6.
 
     Args:
         problem: What to simulate (validated when it was built).
@@ -391,7 +392,7 @@ def hybrid_run(
 class TimeKind(IntEnum):
     """Kinds of time events, in the order they apply at one instant."""
 
-    SIGNAL = 0  # the stop button: drives off (category 0) or ramping (category 1)
+    SIGNAL = 0  # the stop button: drives off (category 0) or ramping (categories 1 and 2)
     BRAKE_SIGNAL = 1  # category 1: drives of joints without a brake go off
     ENGAGE = 2  # one brake engages (payload: joint index)
     LOCK = 3  # prescribed locks and activations (payload: LockEvent)
@@ -669,9 +670,12 @@ def _time_events(
         items.append((event.t, TimeKind.LOCK, event))
     if stop is not None:
         items.append((stop.t, TimeKind.SIGNAL, None))
-        if stop.category == 1:
+        if stop.category in (1, 2):
             assert stop.ramp_time is not None
             items.append((stop.t + stop.ramp_time, TimeKind.KINK, None))
+        if stop.category == 2:
+            brakes = {}  # the drives hold the arm: no brake is signalled
+        if stop.category == 1:
             items.append((stop.brake_signal, TimeKind.BRAKE_SIGNAL, None))
         for i, brake in sorted(brakes.items()):
             t_engage = stop.brake_signal + brake.delay

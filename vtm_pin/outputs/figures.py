@@ -9,6 +9,9 @@ run`` (``summary.json``) and every study case (its row of the results table):
 * the tested joint's angle and time, as makers publish them;
 * **S_s**, the tool frame's largest displacement from where it was at the signal, and its
   straight-line distance at rest, its path, its peak speed, its drop;
+* **S_arm**, the largest displacement of any sampled point of the arm (its links' collision
+  geometry, or the segments between its joint origins; :mod:`vtm_pin.physics.arm_points`): the part
+  nearest a person is not always the tool;
 * T, S (ISO 13855:2024) and S_p (ISO/TS 15066) where the scenario gives their inputs;
 * the flags of :mod:`vtm_pin.outputs.flags` (a brake that cannot hold the load, a joint that slips,
 a
@@ -26,19 +29,21 @@ from typing import Any
 import numpy as np
 
 from ..core.results import SimulationResult
+from ..physics.arm_points import max_displacement, sample_arm_points
 from ..physics.kinematics import compute_tool_jacobian
 from ..standards.bounds import derived_uppers, describe, upper_bounds, variants
 from .flags import Flag, case_flags, tool_drop
 from .stopping import StoppingReport
 
 #: Flags meaning the arm is not held: it collapses, or slides on once it moves.
-NOT_HELD = ("brake_cannot_hold", "brake_cannot_stop")
+NOT_HELD = ("brake_cannot_hold", "brake_cannot_stop", "drive_cannot_hold")
 #: The figures of a stop, in table order, with their units.
 METRICS = {
     "robot_stop_time": "s",
     "test_stop_time": "s",
     "stop_angle": "rad",
     "tcp_max_displacement": "m",
+    "arm_max_displacement": "m",
     "tcp_distance": "m",
     "tcp_path": "m",
     "tool_drop": "m",
@@ -64,6 +69,11 @@ DEFINITIONS = {
     "with the largest travel when the case has no annex_b joint.",
     "tcp_max_displacement": "S_s [m] of ISO/TS 15066: the largest straight-line displacement "
     "of the tool frame from its position at the signal, during the stop.",
+    "arm_max_displacement": "S_arm [m]: the largest straight-line displacement of any sampled "
+    "point of the arm from its position at the signal, during the stop: points on each moving "
+    "link's collision geometry (its convex hull's vertices, at most 100 per link), or on the "
+    "segments between the joint origins where the robot has none, and the tool frame's origin "
+    "(so S_arm >= S_s). The part of the arm nearest a person is not always the tool.",
     "tcp_distance": "Straight-line distance of the tool frame from the signal to rest [m] "
     "(at most tcp_max_displacement).",
     "tcp_path": "Length of the tool frame's path from the signal to rest [m].",
@@ -109,7 +119,10 @@ class StopFigures:
 
     @property
     def holds(self) -> bool:
-        """Whether every brake can hold the arm's weight, and stop it, throughout the stop."""
+        """Whether every brake can hold the arm's weight, and stop it, throughout the stop.
+
+        In a category-2 stop, whether the drives can hold it within their torque limit.
+        """
         return not any(f.kind in NOT_HELD for f in self.flags)
 
 
@@ -130,12 +143,15 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     path = report.tcp_path
     reach = float(np.max(np.linalg.norm(path - path[0], axis=1))) if len(path) else 0.0
     speed = tool_speed_at_signal(robot, result, report)
+    i0 = int(np.argmax(result.t >= report.signal_time))
+    arm = max_displacement(robot, sample_arm_points(robot), result.q[i0:], swept=False)
     separation = scenario.separation.figures(report.all_stopped_time, speed, reach)
     metrics: dict[str, float | None] = {
         "robot_stop_time": report.all_stopped_time,
         "test_stop_time": report.joints[tested].stop_time,
         "stop_angle": angles[tested],
         "tcp_max_displacement": reach,
+        "arm_max_displacement": arm.distance,
         "tcp_distance": report.tcp_distance,
         "tcp_path": report.tcp_path_length,
         "tool_drop": tool_drop(report),

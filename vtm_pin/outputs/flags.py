@@ -10,6 +10,9 @@ A figure a safety engineer signs must not silently describe something else than 
 * ``brake_cannot_stop``: a brake's least kinetic torque (what is left to stop a moving joint)
   is below its joint's gravity load: a joint that moves slides on under its own weight (to
   the speed at which a speed-dependent brake balances it), whatever its static torque holds;
+* ``drive_cannot_hold``: in a category-2 stop (the drives hold the arm, no brake engages), a
+  joint's gravity load after the ramp exceeds its drive torque limit: the drives cannot hold
+  the arm at rest and it sags (the brake flags above are not checked: no brake acts);
 * ``joint_slips``: the engaged brake of a joint other than the tested one gave way (it could
   not hold its joint at rest: it started sliding from rest, or slipped when stuck), so the
   arm moved where the test says only one joint moves;
@@ -48,6 +51,7 @@ from .stopping import StoppingReport
 KINDS = (
     "brake_cannot_hold",
     "brake_cannot_stop",
+    "drive_cannot_hold",
     "worn_brake_cannot_hold",
     "bounds_not_stopped",
     "joint_slips",
@@ -189,6 +193,44 @@ def _load_flag(
     )
 
 
+def drive_flag(robot: Robot, result: SimulationResult, report: StoppingReport) -> Flag | None:
+    """``drive_cannot_hold``: a category-2 stop whose drives cannot hold the gravity load.
+
+    The loads |g(q)| are checked against ``stop.torque_limit`` at :data:`LOAD_SAMPLES` states
+    from the end of the ramp (when the drives start to hold) to the end of the run; the last
+    state if the run ends before the ramp does. The ramp itself may need more than the
+    holding torque; a ramp the limit slows shows in the stopping time, not here.
+    """
+    stop = result.stop
+    if stop is None or stop.category != 2 or stop.torque_limit is None:
+        return None
+    assert stop.ramp_time is not None
+    hold = np.flatnonzero(result.t >= stop.t + stop.ramp_time)
+    if hold.size == 0:
+        hold = np.array([result.t.size - 1])
+    rows = hold[np.unique(np.linspace(0, hold.size - 1, LOAD_SAMPLES).round().astype(int))]
+    loads = gravity_loads(robot, result.q[rows])
+    limit = np.asarray(stop.torque_limit, dtype=float)
+    margins = limit - loads
+    slack = SLACK * max(1.0, float(np.max(loads)))
+    worst = np.min(margins, axis=0)
+    weak = [i for i in range(robot.nv) if worst[i] < -slack]
+    if not weak:
+        return None
+    j = min(weak, key=lambda i: worst[i])
+    names = tuple(robot.joints[i] for i in weak)
+    return Flag(
+        "drive_cannot_hold",
+        f"the drives of {', '.join(names)} cannot hold the arm's weight after the category-2 "
+        f"ramp ({robot.joints[j]}: torque limit {limit[j]:.4g} N m against a gravity load of "
+        f"up to {float(np.max(loads[:, j])):.4g} N m, joint side): the arm sags on its drives; "
+        f"the tool drops {tool_drop(report):.3g} m",
+        names,
+        float(worst[j]),
+        0.0,
+    )
+
+
 def tool_drop(report: StoppingReport) -> float:
     """How far the tool frame falls below its height at the signal during the stop [m]."""
     path = report.tcp_path
@@ -324,8 +366,10 @@ def case_flags(
         tested: The joint under test (Annex-B cases), else None.
         tool_frame: The frame the report follows.
     """
+    category_2 = result.stop is not None and result.stop.category == 2
     found = [
-        *holding_flags(robot, brakes, result, report),
+        *(holding_flags(robot, brakes, result, report) if not category_2 else ()),
+        drive_flag(robot, result, report),
         slip_flag(result, tested),
         None
         if not report.moving

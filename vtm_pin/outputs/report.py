@@ -181,7 +181,8 @@ STOP_TIME_DEFINITION = (
     "overall T, which adds detection, response and latency: see stopping_chain); null if the "
     "joint still moves at the end of the run. latch_time: time from the signal until the "
     "joint's brake sticks or locks for good; in a category-1 stop the drives end the motion "
-    "before the brakes latch."
+    "before the brakes latch; in a category-2 stop no brake is signalled (the drives hold the "
+    "arm) and latch_time is null."
 )
 
 
@@ -267,7 +268,8 @@ def format_figures(figures: StopFigures) -> str:
         f"signed figures: T_robot {_opt(m['robot_stop_time'], 's')} (the robot's own stop, "
         f"from the signal reaching it; NOT ISO 13855's T); tested joint "
         f"{_opt(m['stop_angle'], 'rad')} in {_opt(m['test_stop_time'], 's')}; S_s "
-        f"{_opt(m['tcp_max_displacement'], 'm')} (the tool's largest displacement); tool drop "
+        f"{_opt(m['tcp_max_displacement'], 'm')} (the tool's largest displacement); S_arm "
+        f"{_opt(m['arm_max_displacement'], 'm')} (any point of the arm); tool drop "
         f"{_opt(m['tool_drop'], 'm')}"
     ]
     guard = chain.get("safeguard")
@@ -304,7 +306,10 @@ def format_figures(figures: StopFigures) -> str:
         lines.append(f"upper bounds: {shown}")
         lines.append(f"  {figures.bounds['text']}")
     if not figures.flags:
-        lines.append("flags: none (every brake holds the load; no other joint slips)")
+        lines.append(
+            "flags: none (every brake holds the load, or in category 2 the drives; no other "
+            "joint slips)"
+        )
     lines += [f"FLAG {flag.kind}: {flag.message}" for flag in figures.flags]
     return "\n".join(lines)
 

@@ -2,11 +2,12 @@
 
 A law is one small class with :meth:`DriveLaw.torques`. Four are built in: drives off, drives
 holding the joint rates constant (before a stop signal: tau = RNEA(q, v, 0)), the category-1
-ramp (a computed-torque law taking the rates from their value at the signal linearly to zero
-over ``ramp_time``, with velocity feedback, clipped at ``torque_limit``), and the motors'
+and -2 ramp (a computed-torque law taking the rates from their value at the signal linearly to
+zero over ``ramp_time``, with velocity feedback, clipped at ``torque_limit``; once the ramp has
+ended the same law holds the rates at zero, which is category 2's hold), and the motors'
 short-circuit (dynamic) braking once a drive has dropped out (:class:`ShortCircuit`). Which
 joints' drives act is decided by the stop's timeline (a drive goes off when its brake engages,
-and every drive at a category-0 signal), not by the law.
+and every drive at a category-0 signal; in category 2 none goes off), not by the law.
 """
 
 from __future__ import annotations
@@ -97,10 +98,15 @@ class DriveHold(DriveLaw):
 
 @dataclass(frozen=True, eq=False)
 class DriveRamp(DriveLaw):
-    """Category-1 stop: ramp the rates to zero, computed torque clipped at the torque limit.
+    """Category-1 or -2 stop: ramp the rates to zero, computed torque clipped at the limit.
+
+    After the ramp (t >= t_signal + ramp_time) the reference is v_ref = 0, a_ref = 0: tau =
+    RNEA(q, v, -gain v), clipped, a rate hold that compensates gravity. It holds the arm at rest
+    wherever the gravity torques are within the limit; it does not pull the joints back to
+    where the ramp ended (no position term), so a joint whose limit is exceeded sags.
 
     Attributes:
-        stop: The category-1 stop (ramp time, torque limit, feedback gain).
+        stop: The category-1 or -2 stop (ramp time, torque limit, feedback gain).
         v_signal: Joint rates at the stop signal [rad/s], shape (n,); after :meth:`bind`,
             those of the free joints.
         limit: Torque limits of the free joints [N m], set by :meth:`bind`.

@@ -667,12 +667,13 @@ def _stop(robot: Robot, raw: Any, source: str, assumptions: list[str]) -> Stop |
     limit = raw.get("torque_limit")
     if isinstance(limit, (int, float)):
         limit = [float(limit)] * robot.nv
-    if limit is None and raw.get("category", 0) == 1:
+    category = raw.get("category", 0)
+    if limit is None and category in (1, 2):
         limit = _effort_limits(robot, source)
         shown = ", ".join(f"{x:g}" for x in limit)
         assumptions.append(
-            f"Category-1 drive torque limits default to the URDF effort limits [{shown}] N m "
-            "(joint side)."
+            f"Category-{category} drive torque limits default to the URDF effort limits "
+            f"[{shown}] N m (joint side)."
         )
     torque_limit = (
         None if limit is None else _joint_vector(robot, limit, source, "stop.torque_limit")
@@ -693,7 +694,7 @@ def _stop(robot: Robot, raw: Any, source: str, assumptions: list[str]) -> Stop |
 
 
 def _effort_limits(robot: Robot, source: str) -> list[float]:
-    """The URDF's effort limits [N m], the category-1 torque limits when none are given."""
+    """The URDF's effort limits [N m], the category-1/2 torque limits when none are given."""
     effort = [float(x) for x in robot.model.effortLimit]
     for joint, x in zip(robot.joints, effort, strict=True):
         if not (math.isfinite(x) and x > 0.0):
@@ -701,7 +702,7 @@ def _effort_limits(robot: Robot, source: str) -> list[float]:
                 source,
                 "stop.torque_limit",
                 f"the URDF gives joint '{joint}' no effort limit to default to: give "
-                "torque_limit [N m] for category 1",
+                "torque_limit [N m] for categories 1 and 2",
             )
     return effort
 

@@ -1,7 +1,7 @@
 """Conservative bounds: one-sided upper bounds of the signed figures, at a stated confidence.
 
 A scenario (or a study's base) asks for bounds with ``bounds: {confidence, brake_wear}``. The
-bound of a figure f (T_robot, the tested joint's angle and time, S_s) is
+bound of a figure f (T_robot, the tested joint's angle and time, S_s, S_arm) is
 
     f_upper = max(f, f_worn) + z sqrt(g^T C g) + max(0, -b) / (1 + b) f_worn
 
@@ -45,6 +45,7 @@ BOUNDED = {
     "test_stop_time": "stop_time",
     "stop_angle": "stop_distance",
     "tcp_max_displacement": "stop_distance",
+    "arm_max_displacement": "stop_distance",
 }
 #: The figures derived from the bounded ones through the standards' formulas.
 DERIVED = ("overall_stop_time", "iso13855_distance", "ssm_distance")

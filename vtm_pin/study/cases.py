@@ -109,7 +109,7 @@ NAMED_AXES: dict[str, tuple[Callable[[dict[str, Any], Any], None], str, tuple[st
         "payload mass at the tool frame [kg] (payload.mass)",
         ("payload.mass",),
     ),
-    "category": (_set_category, "stop category, 0 or 1 (stop.category)", ("stop.category",)),
+    "category": (_set_category, "stop category, 0, 1 or 2 (stop.category)", ("stop.category",)),
     "brake_scale": (
         _scale_brakes,
         "worn brakes: every brake's sliding and static torque times this [-]",
@@ -409,7 +409,7 @@ def _build_case(
 _KINDS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "joint": (lambda v: isinstance(v, str), "a joint name"),
     "failed_brake": (lambda v: isinstance(v, str), "a joint name, or none"),
-    "category": (lambda v: v in (0, 1) and not isinstance(v, bool), "0 or 1"),
+    "category": (lambda v: v in (0, 1, 2) and not isinstance(v, bool), "0, 1 or 2"),
     "speed": (lambda v: _number(v) and 0.0 < v <= 1.0, "a fraction in (0, 1]"),
     "extension": (lambda v: _number(v) and 0.0 < v <= 1.0, "a fraction in (0, 1]"),
     "payload": (lambda v: _number(v) and v >= 0.0, "a mass >= 0 kg"),

@@ -1,0 +1,344 @@
+"""Points on every link of the arm, and how far any of them travels during a stop.
+
+ISO/TS 15066's S_s is the distance the robot travels while it stops, and the part of the arm
+nearest a person is not always the tool: an elbow swinging out can travel farther than the
+flange. This module samples points on each moving link, in the frame of the joint that moves
+it, and follows them over a stop.
+
+**Where the points come from.** The links' collision geometry of the robot's URDF, read by
+Pinocchio (``buildGeomFromUrdf``, the same file :func:`vtm_pin.physics.robot.load_robot` built the
+model from; ``package://`` paths are searched in the folders above the URDF, which holds for
+example-robot-data, and in ``ROS_PACKAGE_PATH``). For each link the points are the **vertices of
+the convex hull** of its shapes: meshes (read with ``trimesh``, scaled as the URDF says) and
+primitives (a box's corners; cylinders, cones, spheres, capsules and ellipsoids as polygons of
+:data:`ROUND` points per circle, inscribed, so the true surface bulges out by at most
+r (1 - cos(pi / ROUND)), 0.5 % of the radius). Hull vertices suffice: for one rigid link moved
+from one placement to another, the displacement |R p + t - (R0 p + t0)| is a convex function
+of the body-fixed point p, so over a convex body it is largest at a vertex of the hull. A link
+with more hull vertices than ``per_link`` keeps ``per_link`` of them, chosen by farthest-point
+sampling (deterministic, starting from the vertex farthest from the joint); the largest distance
+from a dropped vertex to a kept point is :attr:`ArmPoints.spacing`, and since the displacement
+is 2-Lipschitz in p, the true largest displacement of the hulls is at most the sampled one plus
+2 x spacing.
+
+Where the robot has no collision geometry (the URDF has no ``<collision>`` elements, a mesh
+file is missing, the robot is a xacro file), the points lie on the **segments between
+consecutive joint origins** (and from the last joint to the tool frame): a stick figure of the
+arm, which says nothing of how thick the links are (the ``source`` field says which). In a
+URDF with collision geometry, a moving link without any gets its segments (``note`` names it).
+
+The tool frame's origin is always one of the points (the link named ``tool frame '<name>'``),
+so the arm's largest displacement is never below the tool's (S_s). The base (geometry fixed to
+the world) never moves and is left out; a payload is not sampled beyond the tool frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from ..files.model_cache import ModelCache
+from .robot import Robot
+
+#: ``ArmPoints.source`` for points on the links' collision geometry.
+GEOMETRY = "collision geometry"
+#: ``ArmPoints.source`` for points on the stick figure of a robot without collision geometry.
+SEGMENTS = "segments between joint origins (no collision geometry)"
+#: Default most points per link.
+PER_LINK = 100
+#: Points per circle of a round primitive (cylinder, cone, sphere, capsule, ellipsoid).
+ROUND = 32
+
+_CACHE = ModelCache(16)
+
+
+@dataclass(frozen=True)
+class ArmPoints:
+    """Points on the moving links of a robot, each fixed in the frame of its joint.
+
+    Attributes:
+        points: Positions in the frame of the joint that moves each point [m], shape (k, 3),
+            ordered by joint.
+        joints: The Pinocchio joint index of each point's frame, shape (k,).
+        link: Index into ``links`` of each point, shape (k,).
+        links: Link names (the last is ``tool frame '<name>'``: the tool frame's origin).
+        source: :data:`GEOMETRY` or :data:`SEGMENTS`.
+        note: Why the segments were used, or which links without collision elements got
+            their segments in a robot that has some; empty otherwise.
+        spacing: Largest distance from a dropped hull vertex to a kept point [m] (0 if no
+            vertex was dropped): the sampled largest displacement is at most 2 x spacing
+            short of the hulls'.
+        per_link: Most points per link asked for.
+    """
+
+    points: np.ndarray
+    joints: np.ndarray
+    link: np.ndarray
+    links: tuple[str, ...]
+    source: str
+    note: str
+    spacing: float
+    per_link: int
+
+
+@dataclass(frozen=True)
+class ArmDisplacement:
+    """The largest displacement of any point of the arm over a trajectory.
+
+    Attributes:
+        distance: max over points and samples of |p(q_t) - p(q_0)| [m].
+        index: The point that travels it (a row of :attr:`ArmPoints.points`).
+        link: That point's link name.
+        sample: The row of the trajectory where it is reached.
+        swept: World positions of every point at every sample [m], shape (T, k, 3); None
+            unless asked for.
+    """
+
+    distance: float
+    index: int
+    link: str
+    sample: int
+    swept: np.ndarray | None = None
+
+
+def sample_arm_points(robot: Robot, per_link: int = PER_LINK) -> ArmPoints:
+    """Points on each moving link of ``robot`` (see the module docstring), cached per model.
+
+    Args:
+        robot: The robot (a payload copy shares its robot's sample: the joints are the same).
+        per_link: Most points per link, >= 2.
+
+    Raises:
+        ValueError: ``per_link`` < 2.
+    """
+    if per_link < 2:
+        raise ValueError(f"per_link is {per_link}; at least 2 points per link are needed")
+    model = robot.model
+    kinematics = b"".join(p.homogeneous.tobytes() for p in model.jointPlacements)
+    key = (robot.source, per_link, robot.tool_frame, tuple(model.names), kinematics)
+    return _CACHE.get(key, lambda: _sample(robot, per_link))
+
+
+def _sample(robot: Robot, per_link: int) -> ArmPoints:
+    groups, note = _geometry_groups(robot)
+    source = GEOMETRY if groups else SEGMENTS
+    spacing = 0.0
+    if groups:
+        chosen = {}
+        for name, (joint, cloud) in groups.items():
+            kept, gap = _farthest_points(_hull(cloud), per_link)
+            chosen[name] = (joint, kept)
+            spacing = max(spacing, gap)
+        # Moving links without collision elements get their segments (the tool frame aside).
+        covered = {joint for joint, _ in chosen.values()}
+        bare = {k: v for k, v in _segment_groups(robot, per_link).items() if v[0] not in covered}
+        if bare:
+            note = f"no collision geometry on {', '.join(bare)}: their segments are sampled"
+        groups = {**chosen, **bare}
+    else:
+        groups = _segment_groups(robot, per_link)
+    model = robot.model
+    tool = model.frames[model.getFrameId(robot.tool_frame)]
+    groups[f"tool frame '{robot.tool_frame}'"] = (
+        int(tool.parentJoint),
+        np.asarray(tool.placement.translation, dtype=float)[None],
+    )
+    groups = {name: (joint, cloud) for name, (joint, cloud) in groups.items() if joint > 0}
+    links = tuple(groups)
+    points = np.vstack([cloud for _, cloud in groups.values()])
+    joints = np.concatenate([np.full(len(c), j, dtype=int) for j, c in groups.values()])
+    link = np.repeat(np.arange(len(links)), [len(cloud) for _, cloud in groups.values()])
+    order = np.argsort(joints, kind="stable")  # each joint's points together
+    points, joints, link = points[order], joints[order], link[order]
+    for array in (points, joints, link):
+        array.flags.writeable = False
+    return ArmPoints(points, joints, link, links, source, note, spacing, per_link)
+
+
+def _geometry_groups(robot: Robot) -> tuple[dict[str, tuple[int, np.ndarray]], str]:
+    """Per link: (joint index, hull candidates in the joint frame); and why none, if none."""
+    path = Path(robot.source)
+    if path.suffix.lower() != ".urdf" or not path.is_file():
+        return {}, f"the robot's file {robot.source} is not a URDF file this module reads"
+    try:
+        geometry = pin.buildGeomFromUrdf(
+            robot.model,
+            str(path),
+            pin.GeometryType.COLLISION,
+            package_dirs=[str(d) for d in path.parents],
+        )
+    except Exception as exc:  # Pinocchio raises bare exceptions for missing meshes
+        return {}, f"its collision geometry could not be loaded ({' '.join(str(exc).split())})"
+    groups: dict[str, tuple[int, list[np.ndarray]]] = {}
+    skipped = []
+    for obj in geometry.geometryObjects:
+        local = _shape_points(obj)
+        if local is None:
+            skipped.append(obj.name)
+            continue
+        name = str(robot.model.frames[obj.parentFrame].name)
+        cloud = local @ obj.placement.rotation.T + obj.placement.translation
+        groups.setdefault(name, (int(obj.parentJoint), []))[1].append(cloud)
+    if not groups:
+        why = "shapes this module cannot sample" if skipped else "no <collision> elements"
+        return {}, f"the URDF has {why}"
+    return {name: (joint, np.vstack(clouds)) for name, (joint, clouds) in groups.items()}, ""
+
+
+def _shape_points(obj: pin.GeometryObject) -> np.ndarray | None:
+    """Points whose hull is the shape, in the shape's own frame [m]; None if unknown."""
+    shape = obj.geometry
+    kind = type(shape).__name__
+    mesh = str(obj.meshPath)
+    if mesh and Path(mesh).is_file() and kind.startswith(("BVHModel", "Convex")):
+        import trimesh
+
+        loaded: Any = trimesh.load(mesh, force="mesh")
+        return np.array(loaded.vertices, dtype=np.float64) * np.asarray(obj.meshScale)
+    circle = np.linspace(0.0, 2.0 * math.pi, ROUND, endpoint=False)
+    ring = np.column_stack([np.cos(circle), np.sin(circle), np.zeros(ROUND)])
+    if kind == "Box":
+        h = np.asarray(shape.halfSide, dtype=float)
+        return np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * h
+    up = np.array([0.0, 0.0, getattr(shape, "halfLength", 0.0)])  # half the axis [m]
+    if kind == "Cylinder":
+        return np.vstack([ring * shape.radius + up, ring * shape.radius - up])
+    if kind == "Cone":
+        return np.vstack([ring * shape.radius - up, up])
+    if kind in ("Sphere", "Ellipsoid", "Capsule"):
+        radii = np.asarray(shape.radii) if kind == "Ellipsoid" else np.full(3, shape.radius)
+        ball = _sphere() * radii
+        if kind != "Capsule":
+            return ball
+        return np.vstack([ball + up, ball - up])
+    return None
+
+
+def _sphere() -> np.ndarray:
+    """ROUND^2 / 2 points on the unit sphere (a Fibonacci lattice)."""
+    count = ROUND * ROUND // 2
+    k = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * k / count
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
+    r = np.sqrt(1.0 - z * z)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def _hull(cloud: np.ndarray) -> np.ndarray:
+    """The vertices of the convex hull of ``cloud`` (all of it if it is flat or tiny)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        return np.asarray(cloud[ConvexHull(cloud).vertices])
+    except (QhullError, ValueError):
+        return np.unique(cloud, axis=0)
+
+
+def _farthest_points(cloud: np.ndarray, count: int) -> tuple[np.ndarray, float]:
+    """``count`` points of ``cloud`` by farthest-point sampling, and the covering gap [m].
+
+    Starts from the point farthest from the joint origin; the gap is the largest distance
+    from a point of ``cloud`` to the nearest kept one (0 if all are kept).
+    """
+    if len(cloud) <= count:
+        return cloud, 0.0
+    chosen = [int(np.argmax(np.linalg.norm(cloud, axis=1)))]
+    gap = np.linalg.norm(cloud - cloud[chosen[0]], axis=1)
+    while len(chosen) < count:
+        nxt = int(np.argmax(gap))
+        chosen.append(nxt)
+        gap = np.minimum(gap, np.linalg.norm(cloud - cloud[nxt], axis=1))
+    return cloud[chosen], float(np.max(gap))
+
+
+def _segment_groups(robot: Robot, per_link: int) -> dict[str, tuple[int, np.ndarray]]:
+    """Per link: points on the segments from its joint's origin to its children's and the tool.
+
+    A link with several children (or a child and the tool frame) shares ``per_link`` among
+    its segments, at least 2 points (the ends) on each.
+    """
+    model = robot.model
+    ends: dict[int, list[np.ndarray]] = {}
+    for j in range(1, model.njoints):
+        ends.setdefault(int(model.parents[j]), []).append(model.jointPlacements[j].translation)
+    tool = model.frames[model.getFrameId(robot.tool_frame)]
+    ends.setdefault(int(tool.parentJoint), []).append(tool.placement.translation)
+    groups = {}
+    for joint, tips in ends.items():
+        if joint == 0:
+            continue
+        count = max(2, per_link // len(tips))
+        s = np.linspace(0.0, 1.0, count)[:, None]
+        cloud = np.vstack([s * np.asarray(tip, dtype=float)[None] for tip in tips])
+        groups[_link_name(model, joint)] = (joint, cloud)
+    return groups
+
+
+def _link_name(model: pin.Model, joint: int) -> str:
+    """The URDF link moved by ``joint`` (its body frame), else the joint's name."""
+    for frame in model.frames:
+        if frame.parentJoint == joint and frame.type == pin.FrameType.BODY:
+            return str(frame.name)
+    return str(model.names[joint])
+
+
+def point_positions(robot: Robot, points: ArmPoints, q: np.ndarray) -> np.ndarray:
+    """World positions of the points at configuration ``q`` [rad], shape (k, 3) [m]."""
+    return _positions(robot.model, points, np.asarray(q, dtype=float)[None])[0]
+
+
+#: Samples whose point positions are formed at once (memory: CHUNK x k x 3 floats).
+CHUNK = 256
+
+
+def _positions(model: pin.Model, points: ArmPoints, qs: np.ndarray) -> np.ndarray:
+    """World positions of the points at each row of ``qs``, shape (T, k, 3) [m]."""
+    data = model.createData()
+    used = np.unique(points.joints)
+    placements = np.empty((len(used), len(qs), 4, 4))
+    for row, q in enumerate(qs):
+        pin.forwardKinematics(model, data, q)
+        for c, j in enumerate(used):
+            placements[c, row] = data.oMi[int(j)].homogeneous
+    out = np.empty((len(qs), len(points.points), 3))
+    bounds = np.searchsorted(points.joints, [*used, used[-1] + 1])  # the points are by joint
+    for c in range(len(used)):
+        mine = slice(int(bounds[c]), int(bounds[c + 1]))
+        rotation, translation = placements[c, :, :3, :3], placements[c, :, None, :3, 3]
+        np.matmul(points.points[mine], rotation.transpose(0, 2, 1), out=out[:, mine])
+        out[:, mine] += translation
+    return out
+
+
+def max_displacement(
+    robot: Robot, points: ArmPoints, q_traj: np.ndarray, swept: bool = True
+) -> ArmDisplacement:
+    """The largest straight-line displacement of any point from where it was at ``q_traj[0]``.
+
+    Args:
+        robot: The robot.
+        points: Its points (:func:`sample_arm_points`).
+        q_traj: Configurations [rad], shape (T, n), T >= 1; the first is the reference (the
+            stop signal).
+        swept: Whether to return every point's positions (for a 3D drawing; T x k x 3
+            floats); without it the samples are taken :data:`CHUNK` at a time.
+    """
+    qs = np.atleast_2d(np.asarray(q_traj, dtype=float))
+    start = _positions(robot.model, points, qs[:1])[0]
+    best, index, sample = 0.0, 0, 0
+    kept = []
+    for first in range(0, len(qs), CHUNK):
+        now = _positions(robot.model, points, qs[first : first + CHUNK])
+        if swept:
+            kept.append(now)
+        distance = np.linalg.norm(now - start, axis=2)
+        row, i = np.unravel_index(int(np.argmax(distance)), distance.shape)
+        if distance[row, i] > best:
+            best, index, sample = float(distance[row, i]), int(i), first + int(row)
+    link = points.links[int(points.link[index])]
+    return ArmDisplacement(best, index, link, sample, np.concatenate(kept) if swept else None)
