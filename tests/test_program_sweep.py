@@ -11,6 +11,7 @@ import html
 import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -44,12 +45,14 @@ def swept(tmp_path_factory):
         "--scenario",
         BASE,
         "--every",
-        "1.0",
+        "2.0",
         "--override",
         "0.5",
         "1.0",
         "--within",
         str(ALLOWED),
+        "--tolerance",
+        "0.05",
         "--workers",
         "2",
         "--json",
@@ -65,7 +68,7 @@ def test_the_run_writes_the_program_files(swept):
     for name in ("program.csv", "program.png", "swept.png", "swept.npz", "program.html"):
         assert (out / name).is_file(), name
     assert (out / "program_at_override.csv").is_file()
-    study = load_program_study(PROGRAM, BASE, every=1.0, overrides=(0.5, 1.0))
+    study = load_program_study(PROGRAM, BASE, every=2.0, overrides=(0.5, 1.0))
     assert len(table) == study.size == 2 * len(study.triggers)
     reasons = ";".join(table["trigger"])
     assert "peak joint speed" in reasons and "peak tool speed" in reasons
@@ -80,7 +83,7 @@ def test_the_run_writes_the_program_files(swept):
 def test_a_trigger_is_the_one_off_run_from_the_same_state(swept):
     """A trigger's figures are those of `vtm-pin run` from the program's state there."""
     _, table, _ = swept
-    study = load_program_study(PROGRAM, BASE, every=1.0, overrides=(0.5, 1.0))
+    study = load_program_study(PROGRAM, BASE, every=2.0, overrides=(0.5, 1.0))
     case = study.cases()[-3]
     raw = case_scenario(study.base, case)
     assert raw["initial"]["q"] == case.settings["initial.q"]
@@ -96,13 +99,19 @@ def test_a_trigger_is_the_one_off_run_from_the_same_state(swept):
 
 
 def test_stopping_distance_grows_with_the_override_where_the_brakes_hold(swept):
+    """S_s grows with F wherever the arm's own motion, not the fall, makes the stop.
+
+    Below 0.1 m/s at F = 0.5 the fall during the brake delay dominates: an arm moving slowly
+    upward can travel less at the higher speed (measured at program time 1 s: 12.2 mm at
+    F = 0.5, 7.8 mm at F = 1), so those triggers are not compared.
+    """
     _, table, _ = swept
     slow = table[table["override"] == 0.5].set_index("program_time")
     fast = table[table["override"] == 1.0].set_index("program_time")
-    moving = fast["tcp_speed_at_signal"] > 1e-3  # at rest both stops are the same fall
+    moving = slow["tcp_speed_at_signal"] >= 0.1  # [m/s]
     holds = slow["holds"].astype(bool) & fast["holds"].astype(bool)
     compared = moving & holds
-    assert compared.sum() >= 5
+    assert compared.sum() >= 3
     grows = fast["tcp_max_displacement"] >= slow["tcp_max_displacement"] - 1e-9
     assert grows[compared].all(), pd.concat([slow, fast], axis=1)[compared & ~grows]
 
@@ -192,17 +201,18 @@ def test_a_base_with_an_annex_b_state_is_refused(tmp_path, capsys):
 
 
 def test_a_bad_program_is_one_line_naming_row_and_column(tmp_path, capsys):
-    shipped = (tmp_path / "p.csv").as_posix()
-    lines = load_program_study(PROGRAM, BASE, every=1.0).program.source  # a path
-    text = open(lines, encoding="utf-8").read().splitlines()
+    program = load_program_study(PROGRAM, BASE, every=1.0).program
+    assert program is not None
+    text = Path(program.source).read_text(encoding="utf-8").splitlines()
     data = [i for i, line in enumerate(text) if line and not line.startswith("#")]
-    row = text[data[5]].split(",")
+    row = text[data[6]].split(",")  # data[0] is the header: this is data row 6
     row[2] = "9.0"  # shoulder_lift_joint far outside its limits
-    text[data[5]] = ",".join(row)
-    open(shipped, "w", encoding="utf-8").write("\n".join(text) + "\n")
-    assert main(["program", shipped, "--scenario", BASE, "--out", str(tmp_path / "o")]) == 1
+    text[data[6]] = ",".join(row)
+    bad = tmp_path / "p.csv"
+    bad.write_text("\n".join(text) + "\n", encoding="utf-8")
+    assert main(["program", str(bad), "--scenario", BASE, "--out", str(tmp_path / "o")]) == 1
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "row " in err and "column" in err
+    assert err.count("\n") == 1 and "row 6, column shoulder_lift_joint" in err, err
     assert not (tmp_path / "o").exists()
 
 

@@ -19,6 +19,7 @@ from conftest import SCENARIOS
 
 import vtm_pin as vp
 from vtm_pin.cli import main
+from vtm_pin.physics.arm_points import sample_arm_points
 from vtm_pin.standards.separation import Iso13855, Safeguard, Ssm
 
 GUARD = {"detection_time": 0.03, "response_time": 0.012, "latency": 0.004}  # [s]
@@ -47,7 +48,19 @@ def test_separation_distances_by_hand_from_a_case():
     T_r = 0.03 + 0.012 + 0.004
     T = T_r + T_robot
     S = 2.0 * T + 0.208 + 0.1
-    S_p = 1.6 * (T_r + T_robot) + v_r * T_r + S_s + 0.208 + 0.1 + 0.02
+    # S_s of S_p is the arm's: the largest displacement of its sampled points, by hand
+    points = sample_arm_points(robot)
+    i0 = int(np.argmax(result.t >= report.signal_time))
+    positions = []
+    for q in result.q[i0:]:
+        pin.forwardKinematics(model, data, q)
+        positions.append(
+            [data.oMi[int(j)].act(x) for j, x in zip(points.joints, points.points, strict=True)]
+        )
+    moved = np.linalg.norm(np.array(positions) - np.array(positions[0]), axis=2)
+    S_arm = float(moved.max())
+    assert S_arm >= S_s
+    S_p = 1.6 * (T_r + T_robot) + v_r * T_r + S_arm + 0.208 + 0.1 + 0.02
     values = output.figures.metrics
     assert values["robot_stop_time"] == pytest.approx(T_robot, rel=1e-12)
     assert values["overall_stop_time"] == pytest.approx(T, rel=1e-12)
@@ -55,6 +68,7 @@ def test_separation_distances_by_hand_from_a_case():
     assert values["ssm_distance"] == pytest.approx(S_p, rel=1e-12)
     assert values["tcp_speed_at_signal"] == pytest.approx(v_r, rel=1e-12)
     assert values["tcp_max_displacement"] == pytest.approx(S_s, rel=1e-12)
+    assert values["arm_max_displacement"] == pytest.approx(S_arm, rel=1e-12)
     chain = output.summary["stopping_chain"]
     assert chain["iso_ts_15066"]["terms"]["S_h"] == pytest.approx(1.6 * (T_r + T_robot))
     assert chain["iso13855"]["formula"] == "S = K T + D_DS + Z"

@@ -67,8 +67,9 @@ DEFINITIONS = {
     "own brake engages, can make it longer).",
     "stop_angle": "Stopping distance of the tested joint [rad], |q(end) - q(signal)|; the joint "
     "with the largest travel when the case has no annex_b joint.",
-    "tcp_max_displacement": "S_s [m] of ISO/TS 15066: the largest straight-line displacement "
-    "of the tool frame from its position at the signal, during the stop.",
+    "tcp_max_displacement": "S_s of the tool [m]: the largest straight-line displacement of the "
+    "tool frame from its position at the signal, during the stop (ISO/TS 15066's S_s is the "
+    "arm's, arm_max_displacement, which S_p uses).",
     "arm_max_displacement": "S_arm [m]: the largest straight-line displacement of any sampled "
     "point of the arm from its position at the signal, during the stop: points on each moving "
     "link's collision geometry (its convex hull's vertices, at most 100 per link), or on the "
@@ -89,7 +90,8 @@ DEFINITIONS = {
     "iso13855_distance": "S [m] of ISO 13855:2024: S = K T + D_DS + Z (separation.iso13855); "
     "empty without its inputs.",
     "ssm_distance": "S_p [m] of ISO/TS 15066: S_h + S_r + S_s + C + Z_d + Z_r "
-    "(separation.iso_ts_15066 with safeguard); empty without its inputs.",
+    "(separation.iso_ts_15066 with safeguard), S_s the arm's largest displacement "
+    "(arm_max_displacement) and v_r the tool's speed at the signal; empty without its inputs.",
     "test_speed": "The tested joint's rate at the signal [rad/s] (annex_b cases).",
     "test_reach": "Horizontal reach of the tool frame at the signal [m] (annex_b cases).",
 }
@@ -145,7 +147,9 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     speed = tool_speed_at_signal(robot, result, report)
     i0 = int(np.argmax(result.t >= report.signal_time))
     arm = max_displacement(robot, sample_arm_points(robot), result.q[i0:], swept=False)
-    separation = scenario.separation.figures(report.all_stopped_time, speed, reach)
+    # S_s of S_p is the arm's largest displacement (>= the tool's): the part of the arm that
+    # reaches a person first is not always the tool, and a smaller S_s is the unsafe side.
+    separation = scenario.separation.figures(report.all_stopped_time, speed, arm.distance)
     metrics: dict[str, float | None] = {
         "robot_stop_time": report.all_stopped_time,
         "test_stop_time": report.joints[tested].stop_time,
@@ -179,7 +183,7 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
         robot.joints[state.joint_index] if state is not None else None,
         scenario.tool_frame,
     )
-    chain = scenario.separation.describe(report.all_stopped_time, speed, reach)
+    chain = scenario.separation.describe(report.all_stopped_time, speed, arm.distance)
     return StopFigures("ok" if not report.moving else "not_stopped", clean, flags, chain)
 
 

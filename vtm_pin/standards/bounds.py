@@ -311,9 +311,12 @@ def describe(spec: BoundSpec, uncertainty: Uncertainty | None) -> dict[str, Any]
 def derived_uppers(
     separation: Any, metrics: Mapping[str, float | None], upper: Mapping[str, float | None]
 ) -> dict[str, float | None]:
-    """T, S and S_p of the bounded T_robot and S_s (:data:`DERIVED` with ``_upper``)."""
+    """T, S and S_p of the bounded T_robot and S_s (:data:`DERIVED` with ``_upper``).
+
+    S_s is the arm's largest displacement (the tool's where the arm's is not bounded).
+    """
     t_robot = upper.get("robot_stop_time_upper")
-    reach = upper.get("tcp_max_displacement_upper")
+    reach = upper.get("arm_max_displacement_upper", upper.get("tcp_max_displacement_upper"))
     speed = metrics.get("tcp_speed_at_signal")
     if t_robot is None or reach is None or speed is None:
         return {f"{name}_upper": None for name in DERIVED}

@@ -22,7 +22,8 @@ with T_r = t_detection + t_response + t_latency the robot system's reaction time
 T_robot its stopping time, v_h the human's speed (1.6 m/s unless the user gives another), v_r
 the robot's speed toward the human during T_r (taken as the tool frame's speed at the signal:
 the drives hold the joint rates until then), S_s the distance the robot travels while it
-stops (the tool frame's largest displacement from where it was at the signal), C the
+stops (the largest displacement of any sampled point of the arm, tool included, from where it
+was at the signal: ``arm_max_displacement``), C the
 intrusion distance, Z_d and Z_r the position uncertainties of the human and the robot [m].
 """
 
