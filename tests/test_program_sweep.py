@@ -230,3 +230,12 @@ def test_chromium_shows_the_program_page(swept, tmp_path):
     assert shown["images"] == 2  # program.png and swept.png, decoded
     assert shown["rows"] == page.count("<tr>") >= len(table)
     assert shown["tables"] == page.count("<table ")
+
+
+def test_list_programs_says_where_they_live(capsys):
+    assert main(["list", "programs", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["program"] for r in rows] == [PROGRAM]
+    assert rows[0]["rows"] == 376 and float(rows[0]["duration [s]"]) == pytest.approx(7.457, 1e-3)
+    assert main(["list", "programs"]) == 0
+    assert "vtm-pin init program NAME" in capsys.readouterr().out

@@ -42,6 +42,7 @@ from .calibration.fit import (
 from .calibration.report import calibration_summary, format_calibration, write_calibration
 from .calibration.table import read_stopping_table
 from .exceptions import (
+    InputError,
     OutputError,
     ScenarioError,
     StudyError,
@@ -50,13 +51,14 @@ from .exceptions import (
     VtmWarning,
     excerpt,
 )
-from .files.inputs import read_yaml
+from .files.inputs import read_text, read_yaml
 from .files.interrupts import EXIT_INTERRUPTED, forget_interrupt
 from .numerics.integrators import INTEGRATORS
 from .numerics.transitions import TRANSITIONS
 from .outputs.pipeline import Progress, check_output_folder, find_scenario, run, write_outputs
 from .outputs.report import format_figures, format_stopping, format_summary, integrator_settings
 from .physics.robot import ROBOTS_DIR, list_example_robots, list_local_robots, load_robot
+from .scene.program import PROGRAMS_DIR
 from .scene.scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
 from .shipped import KINDS, init_files, shipped_names
 from .study.cases import STUDIES_DIR, Study, find_study, load_study
@@ -255,7 +257,7 @@ def _parser() -> argparse.ArgumentParser:
         epilog=_EPILOG,
         formatter_class=formatter,
     )
-    listing.add_argument("what", choices=["robots", "scenarios", "studies"])
+    listing.add_argument("what", choices=["robots", "scenarios", "studies", "programs"])
     listing.add_argument(
         "--dir",
         type=Path,
@@ -882,6 +884,10 @@ def _list(args: argparse.Namespace) -> int:
         folder = STUDIES_DIR
         rows = _study_rows()
         header = ["study", "scenario", "description"]
+    elif args.what == "programs":
+        folder = PROGRAMS_DIR
+        rows = _program_rows()
+        header = ["program", "rows", "duration [s]", "description"]
     else:
         folder = ROBOTS_DIR
         rows = _robot_rows(args.check, not args.json)
@@ -894,7 +900,8 @@ def _list(args: argparse.Namespace) -> int:
         cells = [str(x).ljust(w) for x, w in zip(row[:-1], widths[:-1], strict=True)]
         print("  ".join([*cells, str(row[-1])]))
     if args.dir is None:  # where the shipped files live
-        kind = {"scenarios": "scenario", "studies": "study", "robots": "robot"}[args.what]
+        kinds = {"scenarios": "scenario", "studies": "study", "robots": "robot"}
+        kind = {**kinds, "programs": "program"}[args.what]
         print(f"\nin {folder} ('vtm-pin init {kind} NAME' copies one here)")
     if args.what == "robots" and not args.check:
         data = [n for n in shipped_names("robot") if (ROBOTS_DIR / f"{n}.yaml").is_file()]
@@ -908,6 +915,19 @@ def _list(args: argparse.Namespace) -> int:
             )
         )
     return EXIT_OK
+
+
+def _program_rows() -> list[list[object]]:
+    """The shipped programs: rows, duration and the first line of their comment header."""
+    rows: list[list[object]] = []
+    for name in shipped_names("program"):
+        path = PROGRAMS_DIR / f"{name}.csv"
+        lines = read_text(path, InputError).splitlines()
+        comment = next((x.lstrip("# ").strip() for x in lines if x.startswith("#")), "")
+        data = [x for x in lines if x.strip() and not x.startswith("#")][1:]
+        duration = float(data[-1].split(",")[0]) - float(data[0].split(",")[0]) if data else 0.0
+        rows.append([name, len(data), f"{duration:g}", comment])
+    return rows
 
 
 def _scenario_rows(folder: Path) -> list[list[object]]:
