@@ -1,3 +1,5 @@
+import json
+
 import numpy as np
 import planar_reference as ref
 import pytest
@@ -14,6 +16,7 @@ from vtm_pin import (
     compute_M,
     load_robot,
 )
+from vtm_pin.cli import main
 from vtm_pin.physics.robot import list_local_robots
 
 # Pinocchio and the closed-form Kane model sum the same terms in a different order:
@@ -225,3 +228,30 @@ def test_robot_cache_loads_once_and_keeps_the_most_recent():
     cache("ur5")  # a third robot: the least recently used one, plain planar_3r, goes
     assert cache("planar_3r", drives={"joint1": Drive(gear_ratio=2.0)}) is geared
     assert cache("planar_3r") is not first
+
+
+ONE_JOINT_URDF = """<?xml version="1.0"?>
+<robot name="one">
+  <link name="base"/>
+  <link name="arm"><inertial><origin xyz="0 0 -0.5"/><mass value="1"/>
+    <inertia ixx="0.1" iyy="0.1" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 1 0"/>
+    <limit lower="-3" upper="3" effort="10" velocity="2"/></joint>
+</robot>
+"""
+
+
+def test_a_one_joint_robot_loads_and_runs(tmp_path, capsys):
+    """Pinocchio gives a one-joint model's matrices as vectors; the checks shape them back."""
+    (tmp_path / "one.urdf").write_text(ONE_JOINT_URDF)
+    (tmp_path / "s.yaml").write_text(
+        "robot: one.urdf\ninitial: {q: [1.0]}\nduration: 0.5\nevents:\n  - {t: 0.2, lock: [j1]}\n"
+    )
+    assert (
+        main(
+            ["run", str(tmp_path / "s.yaml"), "--no-plots", "--json", "--out", str(tmp_path / "o")]
+        )
+        == 0
+    )
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["robot"] == "one.urdf" and len(summary["events"]) == 1

@@ -654,12 +654,14 @@ def _check_mass_matrix(model: pin.Model, source: str) -> None:
     zero, and forward dynamics would divide by it.
     """
     data = model.createData()
-    M = pin.crba(model, data, pin.neutral(model))
+    n = model.nv  # eigenpy gives a 1-joint model's matrices as vectors: shape them back
+    M = np.reshape(pin.crba(model, data, pin.neutral(model)), (n, n))
     M = np.triu(M) + np.triu(M, 1).T
     if not np.all(np.isfinite(M)):
         raise RobotLoadError(source, "its mass matrix is not finite (check the joint axes)")
     scale = max(float(np.max(np.abs(M))), np.finfo(float).tiny)
-    axes = np.linalg.norm(pin.computeJointJacobians(model, data, pin.neutral(model)), axis=0)
+    J = np.reshape(pin.computeJointJacobians(model, data, pin.neutral(model)), (6, n))
+    axes = np.linalg.norm(J, axis=0)
     for jid in range(1, model.njoints):
         i = model.joints[jid].idx_v
         if not axes[i] > 0.0:
