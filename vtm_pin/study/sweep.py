@@ -457,16 +457,15 @@ def run_program(
     clock["search"] = time.perf_counter()
     swept = swept_region(study)
     clock["swept"] = time.perf_counter()
-    files = _write_program(study, out, output, search, at, swept)
-    end = time.perf_counter()
-    from .program_report import trigger_table
-
     phases = {
         "cases": clock["cases"] - clock["begin"],
         "search": clock["search"] - clock["cases"],
         "swept": clock["swept"] - clock["search"],
-        "outputs": end - clock["swept"],
     }
+    files = _write_program(study, out, output, search, at, swept, phases)
+    from .program_report import trigger_table
+
+    phases["outputs"] = time.perf_counter() - clock["swept"]
     return ProgramOutput(
         study, trigger_table(study, output.table), files[1], search, files[0], phases
     )
@@ -511,6 +510,7 @@ def _write_program(
     search: OverrideSearch | None,
     at: Any,
     swept: tuple[Any, Any, str],
+    phases: dict[str, float],
 ) -> tuple[tuple[str, ...], dict[str, Any]]:
     """Write the program's files beside the study's; returns (all files, the summary)."""
     import json
@@ -528,6 +528,7 @@ def _write_program(
     table = trigger_table(study, output.table)
     summary = {**output.summary, **summary_extras(search, table)}
     summary["swept_region"] = {"points": len(swept[0]), "source": swept[2]}
+    summary["phases"] = {name: round(value, 3) for name, value in phases.items()}  # [s]
     allowed = None if search is None else search.allowed
     images = {
         "program.png": png(plot_program(table, study.name, allowed)),
