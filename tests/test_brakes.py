@@ -56,8 +56,10 @@ def test_category_one_needs_ramp_and_torque_limit():
         Stop(0.0, category=1, ramp_time=0.3)
     with pytest.raises(BrakeError, match="Category-1 stop needs a ramp time > 0 s, got None"):
         Stop(0.0, category=1, torque_limit=np.ones(3))
-    with pytest.raises(BrakeError, match="Stop category 2 is not 0 or 1"):
-        Stop(0.0, category=2)
+    with pytest.raises(BrakeError, match="Category-2 stop needs a ramp time > 0 s, got None"):
+        Stop(0.0, category=2, torque_limit=np.ones(3))
+    with pytest.raises(BrakeError, match="Stop category 3 is not 0, 1 or 2"):
+        Stop(0.0, category=3)
 
 
 def test_holding_torque_is_the_kkt_multiplier():

@@ -62,15 +62,9 @@ from .scene.program import PROGRAMS_DIR
 from .scene.scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
 from .shipped import KINDS, init_files, shipped_names
 from .study.cases import STUDIES_DIR, Study, find_study, load_study
+from .study.program_report import format_program, run_program
 from .study.runner import CASES_FOLDER, format_study, run_study
-from .study.sweep import (
-    DEFAULT_EVERY,
-    DEFAULT_TOLERANCE,
-    SEARCH_FIGURES,
-    format_program,
-    load_program_study,
-    run_program,
-)
+from .study.sweep import DEFAULT_EVERY, DEFAULT_TOLERANCE, SEARCH_FIGURES, load_program_study
 
 #: Exit codes: success, a user error (bad scenario, robot or option value), bad usage of the
 #: command line, interrupted by Ctrl-C. Nothing is written unless the code is EXIT_OK.

@@ -1,4 +1,8 @@
-"""The outputs of a program sweep: the trigger table, the graph along the program, the report.
+"""A program sweep run end to end, and its outputs: the trigger table, graphs and report.
+
+:func:`run_program` runs the triggers of a :class:`~vtm_pin.study.sweep.ProgramStudy` on the
+study machinery, searches the override if asked, computes the swept region and writes the
+program's files.
 
 ``program.csv`` holds one row per trigger: the override F and program time, why the instant is
 a trigger, T_robot and the overall T, the stop angles, S_s (the tool's largest displacement),
@@ -14,7 +18,9 @@ from __future__ import annotations
 import base64
 import io
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -29,12 +35,17 @@ from .report import (
     _section_flagged,
     _section_versions,
 )
+from .sweep import (
+    DEFAULT_TOLERANCE,
+    OverrideSearch,
+    ProgramStudy,
+    _check_search,
+    find_override,
+)
 
 if TYPE_CHECKING:
     import pandas as pd
     from matplotlib.figure import Figure
-
-    from .sweep import OverrideSearch, ProgramStudy
 
 #: Resolution of the saved graphs [dots per inch].
 FIGURE_DPI = 120
@@ -286,3 +297,224 @@ def summary_extras(search: OverrideSearch | None, table: pd.DataFrame) -> dict[s
 def _finite(value: Any) -> float | None:
     value = float(value)
     return value if math.isfinite(value) else None
+
+
+#: Subfolder of the output folder holding the override search's runs (one per F tried).
+SEARCH_FOLDER = "override_search"
+#: At most this many sampled instants of each stop go into the swept region.
+SWEPT_SAMPLES = 12
+
+
+@dataclass(frozen=True)
+class ProgramOutput:
+    """What :func:`run_program` produced.
+
+    Attributes:
+        study: The program study.
+        table: One row per trigger and override (:func:`trigger_table`).
+        summary: The JSON-ready summary written to ``summary.json``.
+        search: The override search, or None if no allowed distance was given.
+        files: Names of the files written into the output folder, sorted.
+        phases: Wall time of the phases [s]: ``cases``, ``search``, ``swept``, ``outputs``.
+    """
+
+    study: ProgramStudy
+    table: Any
+    summary: Any
+    search: OverrideSearch | None
+    files: tuple[str, ...]
+    phases: Any
+
+
+def run_program(
+    study: ProgramStudy,
+    out: str | Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    engine: str = "batched",
+    within: float | None = None,
+    figure: str = "ssm_distance",
+    tolerance: float = DEFAULT_TOLERANCE,
+) -> ProgramOutput:
+    """Run a program's triggers, search the override if asked, and write the program's files.
+
+    ``out`` gets the study's files (:func:`vtm_pin.study.runner.run_study`) and
+    ``program.csv``, ``program.png``, ``swept.png``, ``swept.npz``, ``program.html`` and, with
+    ``within``, ``program_at_override.csv``. Every run is stored as it finishes, so the same
+    call after an interruption computes only what is missing (the search's runs too, in
+    ``out/override_search``).
+
+    Args:
+        study: The program study.
+        out: Output folder.
+        workers: Processes on this machine; all cores by default.
+        scheduler: Address of a Dask scheduler.
+        progress: Called with (cases done, cases in all) of the current run.
+        engine: ``batched`` or ``scalar``.
+        within: Allowed distance [m] for the override search; None: no search.
+        figure: The figure the search bounds (:data:`SEARCH_FIGURES`).
+        tolerance: The search's tolerance on F [-].
+
+    Raises:
+        StudyError: As :func:`vtm_pin.study.runner.run_study` and :func:`find_override`.
+        OutputError: ``out`` cannot be written.
+    """
+    import time
+
+    from .runner import run_study
+
+    out = Path(out)
+    if within is not None:
+        _check_search(figure, within, tolerance)
+    clock = {"begin": time.perf_counter()}
+    kwargs = {"workers": workers, "scheduler": scheduler, "engine": engine}
+    output = run_study(study, out, progress=progress, **kwargs)  # type: ignore[arg-type]
+    clock["cases"] = time.perf_counter()
+    search, at = None, None
+    if within is not None:
+        tables: dict[float, Any] = {}
+
+        def evaluate(trial: ProgramStudy) -> Any:
+            f = trial.overrides[0]
+            folder = out / SEARCH_FOLDER / f"F_{f:.6f}"
+            tables[f] = run_study(trial, folder, outputs=False, **kwargs).table  # type: ignore[arg-type]
+            return tables[f]
+
+        search = find_override(study, within, evaluate, figure=figure, tolerance=tolerance)
+        at = tables.get(search.override) if search.override is not None else None
+    clock["search"] = time.perf_counter()
+    swept = swept_region(study)
+    clock["swept"] = time.perf_counter()
+    phases = {
+        "cases": clock["cases"] - clock["begin"],
+        "search": clock["search"] - clock["cases"],
+        "swept": clock["swept"] - clock["search"],
+    }
+    files = _write_program(study, out, output, search, at, swept, phases)
+    phases["outputs"] = time.perf_counter() - clock["swept"]
+    return ProgramOutput(
+        study, trigger_table(study, output.table), files[1], search, files[0], phases
+    )
+
+
+def swept_region(study: ProgramStudy) -> tuple[Any, Any, str]:
+    """The arm's sampled points at the triggers and during the stops, at the top override.
+
+    Each trigger's stop is run again here (one process, the scalar engine; deterministic, so
+    the same stop as the study's) and its points taken at up to :data:`SWEPT_SAMPLES`
+    instants. Returns (positions during the stops (k, 3) [m], positions at the triggers
+    (j, 3) [m], where the points come from).
+    """
+    from ..physics.arm_points import point_positions, sample_arm_points
+    from ..physics.robot import RobotCache
+    from ..scene.scenario import build_scenario, run_scenario
+    from .cases import case_scenario
+
+    top = max(study.overrides)
+    robots = RobotCache()
+    reached, start, note = [], [], ""
+    for case in study.cases():
+        if case.values["override"] != top:
+            continue
+        raw = case_scenario(study.base, case)
+        scenario = build_scenario(
+            raw, source=str(study.scenario), base_dir=study.scenario.parent, loader=robots
+        )
+        result = run_scenario(scenario)
+        points = sample_arm_points(scenario.robot)
+        note = points.source
+        rows = np.unique(np.linspace(0, len(result.t) - 1, SWEPT_SAMPLES).astype(int))
+        start.append(point_positions(scenario.robot, points, result.q[0]))
+        reached += [point_positions(scenario.robot, points, result.q[k]) for k in rows[1:]]
+    return np.concatenate(reached), np.concatenate(start), note
+
+
+def _write_program(
+    study: ProgramStudy,
+    out: Path,
+    output: Any,
+    search: OverrideSearch | None,
+    at: Any,
+    swept: tuple[Any, Any, str],
+    phases: dict[str, float],
+) -> tuple[tuple[str, ...], dict[str, Any]]:
+    """Write the program's files beside the study's; returns (all files, the summary)."""
+    import json
+
+    from ..files.staging import write_staged
+
+    table = trigger_table(study, output.table)
+    summary = {**output.summary, **summary_extras(search, table)}
+    summary["swept_region"] = {"points": len(swept[0]), "source": swept[2]}
+    summary["phases"] = {name: round(value, 3) for name, value in phases.items()}  # [s]
+    allowed = None if search is None else search.allowed
+    images = {
+        "program.png": png(plot_program(table, study.name, allowed)),
+        "swept.png": png(
+            plot_swept(swept[0], swept[1], f"{study.name}: swept region of the stops")
+        ),
+    }
+
+    def write(staging: Path) -> None:
+        table.to_csv(staging / "program.csv", index=False)
+        if at is not None:
+            trigger_table(study, at).to_csv(staging / "program_at_override.csv", index=False)
+        for name, data in images.items():
+            (staging / name).write_bytes(data)
+        np.savez_compressed(staging / "swept.npz", reached=swept[0], start=swept[1])
+        (staging / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False))
+        page = render_program_html(study, summary, table, images, search)
+        (staging / "program.html").write_text(page, encoding="utf-8")
+
+    written = write_staged(out, write)
+    return tuple(sorted({*output.files, *written})), summary
+
+
+def format_program(output: ProgramOutput, elapsed: float) -> str:
+    """The lines ``vtm-pin program`` prints: triggers, the worst one, the override found."""
+    study, table = output.study, output.table
+    column, worst = worst_trigger(table)
+    row = table.iloc[worst]
+    lines = [
+        f"program {study.name}: {len(study.triggers)} triggers x {len(study.overrides)} "
+        f"override(s) = {len(table)} stops ({study.size} cases) in {elapsed:.1f} s",
+        f"worst trigger: program time {row['program_time']:.4g} s ({row['trigger']}), "
+        f"F = {row['override']:g}: {column} = {float(row[column]):.4g} m",
+    ]
+    for name, label in (
+        ("robot_stop_time", "T_robot [s] (the robot's own stop, not the overall T)"),
+        (
+            "overall_stop_time",
+            "T overall [s] (ISO 13855: detection + response + latency + T_robot)",
+        ),
+        ("tcp_max_displacement", "S_s, tool [m]"),
+        ("arm_max_displacement", "largest arm-point displacement [m]"),
+        ("ssm_distance", "S_p [m]"),
+    ):
+        if name in table.columns and table[name].notna().any():
+            bound = f"{name}_upper"
+            upper = (
+                f", upper bound {table[bound].max():.4g}"
+                if bound in table.columns
+                else ", NO bound"
+            )
+            lines.append(f"  largest {label}: {table[name].max():.4g}{upper}")
+    flagged = int((table["flags"].astype(str) != "").sum())
+    if flagged:
+        lines.append(f"  {flagged} stops flagged (see program.html)")
+    search = output.search
+    if search is not None:
+        kind = "upper bound" if search.bounded else "NOMINAL figure (no bounds asked for)"
+        if search.override is None:
+            lines.append(
+                f"override: no F in (0, 1] keeps {search.figure} within {search.allowed:g} m"
+            )
+        else:
+            lines.append(
+                f"override: F = {search.override:.4g} keeps every trigger's {search.figure} "
+                f"({kind}) within {search.allowed:g} m; binding trigger at program time "
+                f"{search.binding:.4g} s ({search.worst:.4g} m); tolerance {search.tolerance:g}"
+            )
+    return "\n".join(lines)
