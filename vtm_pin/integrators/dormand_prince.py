@@ -240,8 +240,8 @@ def shrink(err: Any, ops: Ops) -> Any:
 
 def grow(err: Any, rejected: Any, ops: Ops) -> Any:
     """The factor of the next step after an accepted one (at most 1 right after a rejection)."""
-    factor = ops.minimum(MAX_FACTOR, SAFETY * ops.maximum(err, _TINY) ** EXPONENT)
-    return ops.where(rejected, ops.minimum(1.0, factor), factor)
+    largest = ops.where(rejected, 1.0, MAX_FACTOR)
+    return ops.minimum(largest, SAFETY * ops.maximum(err, _TINY) ** EXPONENT)
 
 
 def too_small(t: Any, h: Any) -> Any:
