@@ -3,11 +3,13 @@ r"""The batched engine: many runs of one robot advanced together, dynamics in on
 Every run keeps its own hybrid loop (:func:`vtm_pin.simulation.hybrid_run`: time events,
 brake decisions, locks and their jumps, results), and so its own time, step size and events.
 Only the integration between events is shared: the intervals that the runs ask for are stepped
-together by one vectorised Dormand-Prince 8(5,3), the same method, step control, event
-location and dense output as :class:`~vtm_pin.integrators.DOP853`, so a run's steps are the
-scalar engine's up to round-off. Each Runge-Kutta stage evaluates the dynamics of every run
-of one model in at most three batched calls: ``pinocchio.abaInParallel`` for the runs without
-locks, ``pinocchio.rneaInParallel`` twice for those with.
+together by the Dormand-Prince 8(5,3) step, step control and dense output of
+:mod:`vtm_pin.integrators.dormand_prince` over many lanes, the code that
+:class:`~vtm_pin.integrators.DOP853` runs as its one lane (and the same event location), so a
+run's steps are the scalar engine's up to round-off. Each Runge-Kutta stage evaluates the
+dynamics of every run of one model in at most three batched calls:
+``pinocchio.abaInParallel`` for the runs without locks, ``pinocchio.rneaInParallel`` twice for
+those with.
 
 A run whose phase has joints locked is not given a reduced model (that would be one model per
 run and per lock angle). Its free accelerations come from the full model instead: with L the
