@@ -3,11 +3,13 @@ r"""The batched engine: many runs of one robot advanced together, dynamics in on
 Every run keeps its own hybrid loop (:func:`vtm_pin.core.simulation.hybrid_run`: time events,
 brake decisions, locks and their jumps, results), and so its own time, step size and events.
 Only the integration between events is shared: the intervals that the runs ask for are stepped
-together by one vectorised Dormand-Prince 8(5,3), the same method, step control, event
-location and dense output as :class:`~vtm_pin.numerics.integrators.DOP853`, so a run's steps are the
-scalar engine's up to round-off. Each Runge-Kutta stage evaluates the dynamics of every run
-of one model in at most three batched calls: ``pinocchio.abaInParallel`` for the runs without
-locks, ``pinocchio.rneaInParallel`` twice for those with.
+together by the Dormand-Prince 8(5,3) step, step control and dense output of
+:mod:`vtm_pin.numerics.integrators.dormand_prince` over many lanes, the code that
+:class:`~vtm_pin.numerics.integrators.DOP853` runs as its one lane (and the same event location), so
+a run's steps are the scalar engine's up to round-off. Each Runge-Kutta stage evaluates the
+dynamics of every run of one model in at most three batched calls:
+``pinocchio.abaInParallel`` for the runs without locks, ``pinocchio.rneaInParallel`` twice for
+those with.
 
 A run whose phase has joints locked is not given a reduced model (that would be one model per
 run and per lock angle). Its free accelerations come from the full model instead: with L the
@@ -41,15 +43,8 @@ import pinocchio as pin
 
 from ..exceptions import SimulationError, StepLimitError, VtmError
 from ..numerics.integrators import DOP853, Segment
-from ..numerics.integrators import dop853_coefficients as coef
-from ..numerics.integrators.dop853 import (
-    _EXPONENT,
-    _MAX_FACTOR,
-    _MIN_FACTOR,
-    _SAFETY,
-    _Grid,
-    dense_weights,
-)
+from ..numerics.integrators import dormand_prince as dp
+from ..numerics.integrators.dop853 import _Grid
 from ..numerics.integrators.fixed_step import locate
 from ..numerics.transitions.recursive import weightless
 from ..physics.brakes import ROUNDOFF, BrakeMode, StateEventKind
@@ -67,10 +62,7 @@ ENGINES = ("batched", "scalar")
 #: batch's set-up: its Pinocchio model pools).
 PARTS = ("dynamics", "hybrid", "location", "stepping")
 
-_S = coef.N_STAGES
-_A, _B, _C = coef.A[:_S, :_S], coef.B, coef.C[:_S]
-_A_EXTRA, _C_EXTRA = coef.A[_S + 1 :], coef.C[_S + 1 :]
-_N_EXTRA = _A_EXTRA.shape[0]
+_LANES = dp.LANES
 
 
 def fallback_reason(problem: Problem, integrator: object) -> str | None:
@@ -304,6 +296,8 @@ class BatchEngine:
         #: Wall time [s] in the dynamics (Pinocchio calls and the solves of locked runs), the runs'
         #: hybrid loops (brake decisions, locks, traces) and event location.
         self.seconds = dict.fromkeys(PARTS[:3], 0.0)
+        #: Stage buffers of a step of so many lanes.
+        self._work: dict[int, dp.Stages] = {}
 
     # The right-hand side of every lane in ``rows`` at times t and padded states y.
 
@@ -452,21 +446,22 @@ class BatchEngine:
     def _first_step(self, lanes: _Lanes, rows: np.ndarray) -> np.ndarray:
         """Hairer's initial step guess per lane, as DOP853's (one more evaluation)."""
         it = self.integrator
-        y, fy, active = lanes.y[rows], lanes.fy[rows], lanes.active[rows]
-        span = lanes.t1[rows] - lanes.t[rows]
-        scale = it.atol + it.rtol * np.abs(y)
-        d0 = _rms(y / scale, active)
-        d1 = _rms(fy / scale, active)
-        h0 = np.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / np.where(d1 == 0, 1, d1))
-        h0 = np.minimum(h0, span)
-        f1, _ = self.rhs(lanes, rows, lanes.t[rows] + h0, y + h0[:, None] * fy)
-        d2 = _rms((f1 - fy) / scale, active) / h0
-        small = (d1 <= 1e-15) & (d2 <= 1e-15)
-        with np.errstate(divide="ignore"):
-            h1 = np.where(
-                small, np.maximum(1e-6, h0 * 1e-3), (0.01 / np.maximum(d1, d2)) ** (1.0 / 8.0)
-            )
-        return np.minimum(np.minimum(np.minimum(100.0 * h0, h1), span), it.max_step)
+        t, y = lanes.t[rows], lanes.y[rows]
+
+        def f(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+            return self.rhs(lanes, rows, t, y)[0]
+
+        return dp.first_step(
+            f,
+            t,
+            y,
+            lanes.fy[rows],
+            lanes.t1[rows] - t,
+            (it.rtol, it.atol, it.max_step),
+            _LANES,
+            lanes.count[rows],
+            lanes.active[rows],
+        )
 
     def _g(
         self, lanes: _Lanes, rows: np.ndarray, t: np.ndarray, y: np.ndarray, lam: np.ndarray
@@ -484,33 +479,28 @@ class BatchEngine:
 
     def _stages(
         self, lanes: _Lanes, rows: np.ndarray, h: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The 12 stages: K, y_new, f_new, holding torques at y_new."""
-        t, y = lanes.t[rows], lanes.y[rows]
-        K = np.empty((_S + 1 + _N_EXTRA, rows.size, lanes.ny))
-        K[0] = lanes.fy[rows]
-        for s in range(1, _S):
-            dy = np.tensordot(_A[s, :s], K[:s], axes=(0, 0))
-            K[s], _ = self.rhs(lanes, rows, t + _C[s] * h, y + h[:, None] * dy)
-        y_new = y + h[:, None] * np.tensordot(_B, K[:_S], axes=(0, 0))
-        f_new, lam = self.rhs(lanes, rows, t + h, y_new)
-        K[_S] = f_new
-        return K, y_new, f_new, lam
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One step of lanes ``rows``: stages K (per lane), y_new, holding torques at y_new."""
+        work = self._work.get(rows.size)
+        if work is None:
+            work = self._work[rows.size] = dp.Stages(lanes.ny, rows.size)
+        held: list[np.ndarray] = []
+
+        def into(t: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:
+            out[...], lam = self.rhs(lanes, rows, t, y)
+            held[:] = [lam]
+
+        work.K[:, 0] = lanes.fy[rows]
+        y_new = dp.step(into, lanes.t[rows], lanes.y[rows], h, work)
+        return work.K, y_new, held[0]
 
     def _error(
         self, lanes: _Lanes, rows: np.ndarray, K: np.ndarray, y_new: np.ndarray, h: np.ndarray
     ) -> np.ndarray:
         """DOP853's scaled error norm per lane, over the interval's own entries."""
         it = self.integrator
-        y, active = lanes.y[rows], lanes.active[rows]
-        scale = it.atol + it.rtol * np.maximum(np.abs(y), np.abs(y_new))
-        err5 = np.where(active, np.tensordot(coef.E5, K[: _S + 1], axes=(0, 0)) / scale, 0.0)
-        err3 = np.where(active, np.tensordot(coef.E3, K[: _S + 1], axes=(0, 0)) / scale, 0.0)
-        e5 = np.einsum("bi,bi->b", err5, err5)
-        e3 = np.einsum("bi,bi->b", err3, err3)
-        both = (e5 == 0.0) & (e3 == 0.0)
-        denominator = np.sqrt(np.where(both, 1.0, (e5 + 0.01 * e3) * lanes.count[rows]))
-        return np.where(both, 0.0, np.abs(h) * e5 / denominator)
+        y, active, count = lanes.y[rows], lanes.active[rows], lanes.count[rows]
+        return dp.error_norm(y, y_new, h, K, it.rtol, it.atol, _LANES, count, active)
 
     def _round(self, lanes: _Lanes, runs: Sequence[_Run], rows: np.ndarray) -> list[int]:
         """One step attempt of every running lane; returns the runs whose interval ended."""
@@ -521,12 +511,9 @@ class BatchEngine:
         for b in over:
             self._fail(lanes, runs, b, self._step_limit(lanes, b), finished)
         rows = rows[lanes.steps[rows] <= it.max_steps]
-        t, t1 = lanes.t[rows], lanes.t1[rows]
-        h = np.minimum(lanes.h[rows], it.max_step)
-        last = t + h >= t1 - 1e-14 * np.maximum(1.0, np.abs(t1))
-        h = np.where(last, t1 - t, h)
-        K, y_new, f_new, lam_new = self._stages(lanes, rows, h)
-        lanes.evals[rows] += _S
+        h, last = dp.clamp(lanes.t[rows], lanes.t1[rows], lanes.h[rows], it.max_step, _LANES)
+        K, y_new, lam_new = self._stages(lanes, rows, h)
+        lanes.evals[rows] += dp.S
         err = self._error(lanes, rows, K, y_new, h)
         bad = ~(err <= 1.0)
         if bad.any():
@@ -537,7 +524,7 @@ class BatchEngine:
                 lanes,
                 runs,
                 rows[good],
-                _Step(h[good], last[good], err[good], K[:, good], y_new[good], f_new[good]),
+                _Step(h[good], last[good], err[good], K[good], y_new[good]),
                 lam_new[good],
                 finished,
             )
@@ -553,16 +540,11 @@ class BatchEngine:
         finished: list[int],
     ) -> None:
         """Shrink rejected lanes' steps; a step below the round-off of t fails the run."""
-        finite = np.isfinite(err)
         with np.errstate(divide="ignore", invalid="ignore"):
-            factor = np.where(
-                finite, np.maximum(_MIN_FACTOR, _SAFETY * err**_EXPONENT), _MIN_FACTOR
-            )
-        h = h * factor
+            h = h * dp.shrink(err, _LANES)
         lanes.h[rows] = h
         lanes.rejected[rows] = True
-        t = lanes.t[rows]
-        tiny = h < 10.0 * np.abs(np.nextafter(t, math.inf) - t)
+        tiny = dp.too_small(lanes.t[rows], h)
         for b, hb in zip(rows[tiny], h[tiny], strict=True):
             it = self.integrator
             finite_f = bool(np.all(np.isfinite(lanes.fy[b])))
@@ -613,14 +595,9 @@ class BatchEngine:
         go = ~events
         rows, step, t_new = rows[go], step.select(go), t_new[go]
         lanes.g_prev[rows] = g_new[go]
-        err = step.err
-        with np.errstate(divide="ignore"):
-            factor = np.where(
-                err == 0.0, _MAX_FACTOR, np.minimum(_MAX_FACTOR, _SAFETY * err**_EXPONENT)
-            )
-        factor = np.where(lanes.rejected[rows], np.minimum(1.0, factor), factor)
+        factor = dp.grow(step.err, lanes.rejected[rows], _LANES)
         lanes.rejected[rows] = False
-        lanes.t[rows], lanes.y[rows], lanes.fy[rows] = t_new, step.y_new, step.f_new
+        lanes.t[rows], lanes.y[rows], lanes.fy[rows] = t_new, step.y_new, step.K[:, dp.S]
         lanes.lam[rows] = lam_new[go]
         lanes.h[rows] = step.h * factor
         gridless = np.array([runs[b].grid is None for b in rows], dtype=bool)
@@ -652,7 +629,7 @@ class BatchEngine:
         functions), its output times up to it, and the event state; its interval ends.
         """
         sub, fired, t_new = rows[dense], fired[dense], t_new[dense]
-        lanes.evals[sub] += _N_EXTRA
+        lanes.evals[sub] += dp.N_EXTRA
         part = step.select(dense)
         F = self._dense_coefficients(lanes, sub, part)
         owners: list[int] = []
@@ -692,7 +669,7 @@ class BatchEngine:
         """The dense output at ``times`` [s] (of lanes ``sub[owner]``), with holding torques."""
         when = np.array(times)
         x = (when - lanes.t[sub][owner]) / part.h[owner]
-        y = _horner(F[owner], x, lanes.y[sub][owner])
+        y = dp.dense_value(F[owner], x, lanes.y[sub][owner], _LANES)
         _, lam = self.rhs(lanes, sub[owner], when, y)
         split = np.flatnonzero(np.diff(owner)) + 1
         starts = np.concatenate([[0], split]).astype(int)
@@ -745,7 +722,7 @@ class BatchEngine:
         y, Fr = lanes.y[b, reduced], np.ascontiguousarray(F[:, reduced])
 
         def dense(tau: float) -> np.ndarray:  # DOP853's continuous extension, as it has it
-            return y + dense_weights(tau / h).dot(Fr)
+            return dp.dense_value(Fr, tau / h, y, dp.ONE_LANE)
 
         events = [e.event for e in request.phase.events]
         indices = sorted(int(lanes.event_index[b, j]) for j in np.flatnonzero(fired))
@@ -756,18 +733,12 @@ class BatchEngine:
 
     def _dense_coefficients(self, lanes: _Lanes, rows: np.ndarray, step: _Step) -> np.ndarray:
         """The 7th-order continuous extensions' coefficients F, shape (B, 7, ny)."""
-        K, h = step.K, step.h
+
+        def into(t: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:
+            out[...], _ = self.rhs(lanes, rows, t, y)
+
         t, y = lanes.t[rows], lanes.y[rows]
-        for s, (a, c) in enumerate(zip(_A_EXTRA, _C_EXTRA, strict=True), start=_S + 1):
-            dy = np.tensordot(a[:s], K[:s], axes=(0, 0))
-            K[s], _ = self.rhs(lanes, rows, t + c * h, y + h[:, None] * dy)
-        delta = step.y_new - y
-        F = np.empty((rows.size, coef.INTERPOLATOR_POWER, lanes.ny))
-        F[:, 0] = delta
-        F[:, 1] = h[:, None] * K[0] - delta
-        F[:, 2] = 2.0 * delta - h[:, None] * (step.f_new + K[0])
-        F[:, 3:] = h[:, None, None] * np.einsum("sk,kbi->bsi", coef.D, K)
-        return F
+        return dp.dense_coefficients(into, t, y, step.y_new, step.h, step.K, _LANES)
 
     def _finish(self, lanes: _Lanes, run: _Run, b: int, event: int | None) -> None:
         """Hand run ``b`` its segment (reduced layout) and take its next request."""
@@ -819,24 +790,19 @@ class BatchEngine:
 
 @dataclass
 class _Step:
-    """The accepted step of some lanes: sizes, whether last, errors, stages, new states."""
+    """The accepted step of some lanes: sizes, whether last, errors, stages, new states.
+
+    K: per lane the stages (f at the step's end in K[:, 12]), shape (B, 16, ny).
+    """
 
     h: np.ndarray
     last: np.ndarray
     err: np.ndarray
     K: np.ndarray
     y_new: np.ndarray
-    f_new: np.ndarray
 
     def select(self, mask: np.ndarray) -> _Step:
-        return _Step(
-            self.h[mask],
-            self.last[mask],
-            self.err[mask],
-            self.K[:, mask],
-            self.y_new[mask],
-            self.f_new[mask],
-        )
+        return _Step(self.h[mask], self.last[mask], self.err[mask], self.K[mask], self.y_new[mask])
 
 
 def _ramp_factor(lanes: _Lanes, rows: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -853,22 +819,6 @@ def _crossed(g0: np.ndarray, g1: np.ndarray, direction: np.ndarray) -> np.ndarra
         down = (direction <= 0) & (g0 > 0.0) & (0.0 >= g1)
         back = (g0 == 0.0) & (direction * g1 > 0.0)
     return up | down | back
-
-
-def _horner(F: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """DOP853's dense output y + sum F_i x^.. (1 - x)^.., rows of F at offsets x = tau / h."""
-    out = np.zeros_like(y)
-    for i, row in enumerate(F[:, ::-1].transpose(1, 0, 2)):
-        out += row
-        out *= x[:, None] if i % 2 == 0 else (1.0 - x)[:, None]
-    return y + out
-
-
-def _rms(x: np.ndarray, active: np.ndarray) -> np.ndarray:
-    """Root mean square of each row over its active entries."""
-    return np.sqrt(
-        np.einsum("bi,bi->b", np.where(active, x, 0.0), np.where(active, x, 0.0))
-    ) / np.sqrt(active.sum(axis=1))
 
 
 @dataclass(frozen=True)
