@@ -162,6 +162,7 @@ def test_unknown_figures_are_refused() -> None:
 UR5_CLASS = "delay,sliding,viscous:shared"
 
 
+@pytest.mark.slow  # ~40-85 s: four model classes fitted to the UR5 table
 @pytest.mark.skipif(not UR5_TABLE.is_file(), reason="../shared/data is not beside the project")
 def test_ur5_cb3_table_fit_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The published UR5 (CB3) table with the class the comparison chooses: distances fit to

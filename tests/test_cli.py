@@ -177,6 +177,7 @@ def test_json_prints_the_summary_and_quiet_prints_nothing(tmp_path, capsys):
     assert "not allowed with argument" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # ~15-35 s: runs under a pseudo-terminal
 def test_progress_bar_on_a_terminal_only(tmp_path, capsys, monkeypatch):
     import vtm_pin.cli
 

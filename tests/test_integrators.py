@@ -91,6 +91,7 @@ def energy_drift(integrator, duration):
     return result.t, np.abs(total - total[0])
 
 
+@pytest.mark.slow  # ~10-20 s: a long horizon per method
 def test_long_horizon_energy_drift_per_method():
     """100 s without events: energy drift of each method, bounded by its order.
 

@@ -27,7 +27,12 @@ def test_committed_notebook_is_stripped(path):
             assert cell.outputs == [] and cell.execution_count is None, cell.source[:60]
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+@pytest.mark.parametrize(
+    "path",
+    # the first in the default run; the two longer ones (~15-20 s each) in the slow run
+    [p if i == 0 else pytest.param(p, marks=pytest.mark.slow) for i, p in enumerate(NOTEBOOKS)],
+    ids=[p.stem for p in NOTEBOOKS],
+)
 def test_notebook_runs_without_error(path):
     nb = nbformat.read(path, as_version=4)
     client = NotebookClient(

@@ -322,6 +322,7 @@ def test_stopping_angle_grows_with_payload_moving_down(annex_b_study: pd.DataFra
             assert np.all(np.diff(angles) > -1e-9), key
 
 
+@pytest.mark.slow  # ~20-40 s: the shipped 200-case study
 def test_shipped_brake_wear_study_runs(tmp_path: Path) -> None:
     """The sampled study: 200 cases; worn brakes stop later (rank correlation > 0.1)."""
     output = run_study(load_study(find_study("ur10_brake_wear")), tmp_path / "out", workers=2)

@@ -225,6 +225,7 @@ RACER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # ~15-40 s: two racing studies, repeated
 def test_two_studies_started_at_once_into_one_folder_never_both_succeed(tmp_path: Path) -> None:
     """20 races: the lock lets one study have the folder; the other gets one line, exit 1."""
     a = write_study(tmp_path / "a", {"joint": ["elbow_joint"], "duration": [0.3]})
@@ -353,7 +354,10 @@ def interrupted_clean(tmp_path_factory: pytest.TempPathFactory) -> pd.DataFrame:
     return run_study(load_study(path), folder / "out", workers=1).table
 
 
-@pytest.mark.parametrize(("seed", "workers"), [(1, 1), (2, 2)])
+@pytest.mark.parametrize(
+    ("seed", "workers"),
+    [(1, 1), pytest.param(2, 2, marks=pytest.mark.slow)],  # (2, 2): ~20 s
+)
 def test_ctrl_c_at_a_random_time_exits_promptly_and_keeps_finished_cases(
     seed: int, workers: int, interrupted_clean: pd.DataFrame, tmp_path: Path
 ) -> None:
