@@ -14,11 +14,15 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 import yaml
-from conftest import robot
+from conftest import SCENARIOS, robot
 
+from vtm_pin import load_scenario, run_scenario
 from vtm_pin.cli import main
+from vtm_pin.outputs.figures import stop_figures
+from vtm_pin.outputs.stopping import compute_stopping_report
 from vtm_pin.physics.arm_points import (
     GEOMETRY,
     SEGMENTS,
@@ -26,7 +30,7 @@ from vtm_pin.physics.arm_points import (
     point_positions,
     sample_arm_points,
 )
-from vtm_pin.physics.kinematics import compute_tool_positions
+from vtm_pin.physics.kinematics import NUMPY_FROM, compute_tool_positions
 from vtm_pin.physics.payload import Payload, attach_payload
 from vtm_pin.physics.robot import load_robot
 
@@ -219,3 +223,58 @@ def test_run_reports_s_arm_beside_s_s(tmp_path, capsys):
     assert "any sampled point of the arm" in figures["definitions"]["arm_max_displacement"]
     assert figures["units"]["arm_max_displacement"] == "m"
     assert "S_arm" in printed
+
+
+def pinocchio_displacement(robot_, points, qs):
+    """S_arm the plain way: Pinocchio's joint placements sample by sample, every point's
+    position, its distance from the first sample's: (largest, point, sample, positions)."""
+    data = robot_.model.createData()
+    swept = []
+    for q in qs:
+        pin.forwardKinematics(robot_.model, data, q)
+        rotations = np.array([m.rotation for m in data.oMi])[points.joints]
+        origins = np.array([m.translation for m in data.oMi])[points.joints]
+        swept.append(np.einsum("kab,kb->ka", rotations, points.points) + origins)
+    swept = np.array(swept)
+    distance = np.linalg.norm(swept - swept[0], axis=2)
+    sample, index = np.unravel_index(int(np.argmax(distance)), distance.shape)
+    return float(distance[sample, index]), int(index), int(sample), swept
+
+
+@pytest.mark.parametrize("name", ["ur10_annex_b", "ur10_estop_cat0"])
+def test_s_arm_is_pinocchios_point_by_point_on_the_shipped_ur10_stops(name):
+    """The vectorised S_arm against Pinocchio sample by sample (EXACT: round-off), on the
+    whole stop (the NumPy path) and on its first 10 samples (fewer than NUMPY_FROM)."""
+    scenario = load_scenario(SCENARIOS / f"{name}.yaml")
+    result = run_scenario(scenario)
+    report = compute_stopping_report(scenario.robot, result, scenario.brakes, scenario.tool_frame)
+    i0 = int(np.argmax(result.t >= report.signal_time))
+    points = sample_arm_points(scenario.robot)
+    assert points.source == GEOMETRY and len(result.q) - i0 >= NUMPY_FROM
+    whole = pinocchio_displacement(scenario.robot, points, result.q[i0:])[0]
+    for qs in (result.q[i0:], result.q[i0 : i0 + 10]):
+        distance, index, sample, swept = pinocchio_displacement(scenario.robot, points, qs)
+        arm = max_displacement(scenario.robot, points, qs)
+        assert arm.distance == pytest.approx(distance, rel=0, abs=EXACT)
+        assert (arm.index, arm.sample) == (index, sample)
+        assert arm.swept is not None
+        np.testing.assert_allclose(arm.swept, swept, rtol=0, atol=EXACT)
+    figures = stop_figures(scenario, result, report)
+    assert figures.metrics["arm_max_displacement"] == pytest.approx(whole, rel=0, abs=EXACT)
+    assert figures.metrics["arm_max_displacement"] >= figures.metrics["tcp_max_displacement"]
+
+
+def test_on_a_tie_the_first_sample_and_then_the_first_point_is_named():
+    """Joint 1 turns to pi, back to 0 and to pi again: the largest displacement, 6 m, is
+    reached at both visits of pi (the same configuration: the same figures to the bit) by
+    link3's far end and the tip (the same place): the first sample and point are named."""
+    r = robot("planar_3r")
+    points = sample_arm_points(r, per_link=PER_LINK)
+    there, back = np.linspace(0.0, math.pi, 40), np.linspace(math.pi, 0.0, 40)
+    q = np.zeros((118, 3))
+    q[:, 0] = np.concatenate([there, back[1:], there[1:]])
+    assert q[39, 0] == q[117, 0] == math.pi and len(q) >= NUMPY_FROM
+    result = max_displacement(r, points, q, swept=False)
+    assert result.distance == pytest.approx(6.0, abs=EXACT)
+    assert result.sample == 39 and result.link == "link3"
+    assert result.index == int(np.flatnonzero(points.link == 2)[-1])  # its far end

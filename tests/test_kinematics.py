@@ -1,13 +1,19 @@
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import robot
+from conftest import SCENARIOS, robot
 
+from vtm_pin import load_scenario, run_scenario
+from vtm_pin.outputs.stopping import compute_stopping_report
+from vtm_pin.physics import kinematics
 from vtm_pin.physics.kinematics import (
+    NUMPY_FROM,
     compute_tool_jacobian,
     compute_tool_motion,
     compute_tool_positions,
+    joint_placements,
 )
+from vtm_pin.physics.robot import Robot
 
 #: Against closed-form geometry: round-off of sums of a few sines and cosines [m, m/s, m/rad].
 FK_TOL = 1e-12
@@ -94,3 +100,151 @@ def test_tool_jacobians_of_many_configurations_are_those_of_each():
     assert many.shape == (4, 3, arm.nv)
     for q, J in zip(qs, many, strict=True):
         np.testing.assert_array_equal(J, compute_tool_jacobian(arm, q))
+
+
+# --- Forward kinematics vectorised over samples (kinematics.joint_placements) ---------------
+
+#: NumPy's placements against Pinocchio's: products of a few rotations, each step rounding at
+#: ~1e-16; 1e-12 [-, m, m/s] leaves room for chains of a dozen joints.
+VEC_TOL = 1e-12
+#: Samples per check: above NUMPY_FROM, so that the NumPy path is the one tested.
+SAMPLES = max(64, NUMPY_FROM + 1)
+SHIPPED = ["ur10", "planar_3r", "rx160l", "panda"]
+
+
+def pinocchio_placements(model, qs):
+    """Pinocchio's data.oMi at each row of ``qs``: rotations (T, njoints, 3, 3), origins."""
+    data = model.createData()
+    R, p = [], []
+    for q in qs:
+        pin.forwardKinematics(model, data, q)
+        R.append([np.array(m.rotation) for m in data.oMi])
+        p.append([np.array(m.translation) for m in data.oMi])
+    return np.array(R), np.array(p)
+
+
+def pinocchio_frame_motion(model, fid, qs, vs):
+    """Pinocchio's frame origin [m] and LOCAL_WORLD_ALIGNED linear velocity [m/s] per sample."""
+    data = model.createData()
+    positions, velocities = [], []
+    for q, v in zip(qs, vs, strict=True):
+        pin.forwardKinematics(model, data, q, v)
+        positions.append(pin.updateFramePlacement(model, data, fid).translation.copy())
+        velocities.append(pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear)
+    return np.array(positions), np.array(velocities)
+
+
+def random_states(model, seed, count=SAMPLES):
+    """Seeded configurations within +-pi [rad] (+-0.2 m for prismatic joints) and rates."""
+    rng = np.random.default_rng(seed)
+    lower = np.maximum(model.lowerPositionLimit, -np.pi)
+    upper = np.minimum(model.upperPositionLimit, np.pi)
+    qs = rng.uniform(lower, upper, (count, model.nq))
+    return qs, rng.uniform(-2.0, 2.0, (count, model.nv))
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_joint_placements_match_pinocchios_forward_kinematics(name):
+    arm = robot(name)
+    qs, _ = random_states(arm.model, seed=11)
+    assert kinematics._chain(arm.model) is not None  # their joints all take the NumPy path
+    R, p = joint_placements(arm, qs)
+    R_ref, p_ref = pinocchio_placements(arm.model, qs)
+    njoints = arm.model.njoints
+    assert R.shape == (SAMPLES, njoints, 3, 3) and p.shape == (SAMPLES, njoints, 3)
+    np.testing.assert_allclose(R, R_ref, rtol=0, atol=VEC_TOL)
+    np.testing.assert_allclose(p, p_ref, rtol=0, atol=VEC_TOL)
+    # the bare model gives the same; lanes (leading axes) are rows like any other
+    R_model, _ = joint_placements(arm.model, qs)
+    np.testing.assert_array_equal(R_model, R)
+    R_lanes, p_lanes = joint_placements(arm, qs.reshape(2, SAMPLES // 2, -1))
+    assert R_lanes.shape == (2, SAMPLES // 2, arm.model.njoints, 3, 3)
+    np.testing.assert_allclose(R_lanes.reshape(R.shape), R, rtol=0, atol=VEC_TOL)
+    np.testing.assert_allclose(p_lanes.reshape(p.shape), p, rtol=0, atol=VEC_TOL)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+@pytest.mark.parametrize("count", [SAMPLES, 3], ids=["numpy", "few"])
+def test_tool_positions_and_speeds_match_pinocchios_frame_motion(name, count):
+    arm = robot(name)
+    qs, vs = random_states(arm.model, seed=12, count=count)
+    fid = arm.model.getFrameId(arm.tool_frame)
+    positions, speeds = compute_tool_motion(arm, qs, vs)
+    ref_positions, ref_velocities = pinocchio_frame_motion(arm.model, fid, qs, vs)
+    np.testing.assert_allclose(positions, ref_positions, rtol=0, atol=VEC_TOL)
+    np.testing.assert_allclose(speeds, np.linalg.norm(ref_velocities, axis=1), rtol=0, atol=VEC_TOL)
+    np.testing.assert_allclose(compute_tool_positions(arm, qs), positions, rtol=0, atol=VEC_TOL)
+
+
+def every_joint_type():
+    """A tree of every 1-DoF joint type vtm-pin loads, unaligned axes and two branches, and a
+    tool frame on the second branch; plus its joint types in order."""
+    model = pin.Model()
+    tilted = np.array([1.0, -2.0, 0.5]) / np.linalg.norm([1.0, -2.0, 0.5])
+    joints = [
+        pin.JointModelRZ(),
+        pin.JointModelRevoluteUnaligned(*tilted),
+        pin.JointModelPX(),
+        pin.JointModelRX(),
+        pin.JointModelPrismaticUnaligned(*(-tilted)),
+        pin.JointModelRY(),
+        pin.JointModelPY(),
+        pin.JointModelPZ(),
+    ]
+    parents = [0, 1, 2, 3, 4, 2, 6, 7]  # joint 6 branches off joint 2
+    rng = np.random.default_rng(5)
+    for k, (joint, parent) in enumerate(zip(joints, parents, strict=True)):
+        placement = pin.SE3(pin.exp3(rng.normal(size=3)), rng.normal(scale=0.3, size=3))
+        jid = model.addJoint(parent, joint, placement, f"j{k + 1}")
+        model.appendBodyToJoint(jid, pin.Inertia.Random(), pin.SE3.Identity())
+    tool = pin.SE3(pin.exp3(rng.normal(size=3)), np.array([0.1, -0.2, 0.3]))
+    model.addFrame(pin.Frame("tool", model.njoints - 1, tool, pin.FrameType.OP_FRAME))
+    return model, [j.shortname() for j in joints]
+
+
+def test_every_joint_type_vtm_pin_loads_takes_the_numpy_path_and_matches_pinocchio():
+    model, kinds = every_joint_type()
+    assert set(kinds) == set(kinematics._MOTIONS)  # the tree has each type the table knows
+    assert kinematics._chain(model) is not None
+    names = tuple(model.names[1:])
+    tree = Robot("tree", "tree", model, names, np.ones(model.nv), tool_frame="tool")
+    qs, vs = random_states(model, seed=13)
+    R, p = joint_placements(tree, qs)
+    R_ref, p_ref = pinocchio_placements(model, qs)
+    np.testing.assert_allclose(R, R_ref, rtol=0, atol=VEC_TOL)
+    np.testing.assert_allclose(p, p_ref, rtol=0, atol=VEC_TOL)
+    positions, speeds = compute_tool_motion(tree, qs, vs)
+    ref_positions, ref_velocities = pinocchio_frame_motion(model, model.getFrameId("tool"), qs, vs)
+    np.testing.assert_allclose(positions, ref_positions, rtol=0, atol=VEC_TOL)
+    np.testing.assert_allclose(speeds, np.linalg.norm(ref_velocities, axis=1), rtol=0, atol=VEC_TOL)
+
+
+def test_a_joint_type_numpy_does_not_compute_falls_back_to_pinocchio():
+    """A continuous joint (nq = 2, which load_robot refuses) and a spherical one: the model
+    goes through Pinocchio's loop, with the same results as Pinocchio's own."""
+    model = pin.Model()
+    first = model.addJoint(0, pin.JointModelRUBZ(), pin.SE3.Identity(), "continuous")
+    model.addJoint(first, pin.JointModelSpherical(), pin.SE3(np.eye(3), np.ones(3)), "ball")
+    assert kinematics._chain(model) is None
+    rng = np.random.default_rng(14)
+    qs = np.array([pin.randomConfiguration(model, -np.ones(6), np.ones(6)) for _ in range(40)])
+    qs = np.array([pin.normalize(model, q) for q in qs + rng.normal(scale=0.1, size=qs.shape)])
+    R, p = joint_placements(model, qs)
+    R_ref, p_ref = pinocchio_placements(model, qs)
+    np.testing.assert_array_equal(R, R_ref)
+    np.testing.assert_array_equal(p, p_ref)
+
+
+@pytest.mark.parametrize("name", ["ur10_annex_b", "ur10_estop_cat0"])
+def test_the_stopping_reports_tool_path_and_speed_are_pinocchios_on_the_shipped_ur10_stops(name):
+    scenario = load_scenario(SCENARIOS / f"{name}.yaml")
+    result = run_scenario(scenario)
+    report = compute_stopping_report(scenario.robot, result, scenario.brakes, scenario.tool_frame)
+    model = scenario.robot.model
+    fid = model.getFrameId(report.tool_frame)
+    positions, velocities = pinocchio_frame_motion(model, fid, result.q, result.v)
+    i0 = len(result.q) - len(report.tcp_path)
+    assert len(result.q) >= NUMPY_FROM  # the NumPy path
+    np.testing.assert_allclose(report.tcp_path, positions[i0:], rtol=0, atol=VEC_TOL)
+    peak = np.max(np.linalg.norm(velocities[i0:], axis=1))
+    assert report.tcp_peak_speed == pytest.approx(peak, rel=0, abs=VEC_TOL)

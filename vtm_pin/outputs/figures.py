@@ -147,6 +147,9 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     speed = tool_speed_at_signal(robot, result, report)
     i0 = int(np.argmax(result.t >= report.signal_time))
     arm = max_displacement(robot, sample_arm_points(robot), result.q[i0:], swept=False)
+    # The tool's origin is one of the arm's points: S_arm >= S_s, but the two are computed
+    # apart and may differ in the last bit; keep the order exact.
+    arm = dataclasses.replace(arm, distance=max(arm.distance, reach))
     # S_s of S_p is the arm's largest displacement (>= the tool's): the part of the arm that
     # reaches a person first is not always the tool, and a smaller S_s is the unsafe side.
     separation = scenario.separation.figures(report.all_stopped_time, speed, arm.distance)

@@ -43,6 +43,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..files.model_cache import ModelCache
+from .kinematics import joint_placements
 from .robot import Robot
 
 #: ``ArmPoints.source`` for points on the links' collision geometry.
@@ -289,30 +290,35 @@ def _link_name(model: pin.Model, joint: int) -> str:
 
 def point_positions(robot: Robot, points: ArmPoints, q: np.ndarray) -> np.ndarray:
     """World positions of the points at configuration ``q`` [rad], shape (k, 3) [m]."""
-    return _positions(robot.model, points, np.asarray(q, dtype=float)[None])[0]
+    R, p = joint_placements(robot, np.asarray(q, dtype=float)[None])
+    return _place(points, R, p)[:, :, 0]
 
 
-#: Samples whose point positions are formed at once (memory: CHUNK x k x 3 floats).
+#: Samples whose point displacements are formed at once (memory: CHUNK x k x 3 floats).
 CHUNK = 256
 
 
-def _positions(model: pin.Model, points: ArmPoints, qs: np.ndarray) -> np.ndarray:
-    """World positions of the points at each row of ``qs``, shape (T, k, 3) [m]."""
-    data = model.createData()
+def _place(points: ArmPoints, R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Where the points go under the joints' placements: R p_i + p, shape (k, 3, T) [m].
+
+    One matrix product per joint over all T samples at once (points by rows, axes and
+    samples by columns), each axis's samples contiguous.
+
+    Args:
+        points: The points.
+        R: Rotations of the joints' frames at T samples, shape (T, njoints, 3, 3).
+        p: Their origins [m], shape (T, njoints, 3).
+    """
+    count = len(R)
+    out = np.empty((len(points.points), 3 * count))
     used = np.unique(points.joints)
-    placements = np.empty((len(used), len(qs), 4, 4))
-    for row, q in enumerate(qs):
-        pin.forwardKinematics(model, data, q)
-        for c, j in enumerate(used):
-            placements[c, row] = data.oMi[int(j)].homogeneous
-    out = np.empty((len(qs), len(points.points), 3))
     bounds = np.searchsorted(points.joints, [*used, used[-1] + 1])  # the points are by joint
-    for c in range(len(used)):
+    for c, j in enumerate(used):
         mine = slice(int(bounds[c]), int(bounds[c + 1]))
-        rotation, translation = placements[c, :, :3, :3], placements[c, :, None, :3, 3]
-        np.matmul(points.points[mine], rotation.transpose(0, 2, 1), out=out[:, mine])
-        out[:, mine] += translation
-    return out
+        columns = R[:, j].transpose(2, 1, 0).reshape(3, 3 * count)  # [b, a T + t] = R[t, a, b]
+        np.matmul(points.points[mine], columns, out=out[mine])
+        out[mine] += p[:, j].T.reshape(-1)
+    return out.reshape(len(points.points), 3, count)
 
 
 def max_displacement(
@@ -320,25 +326,30 @@ def max_displacement(
 ) -> ArmDisplacement:
     """The largest straight-line displacement of any point from where it was at ``q_traj[0]``.
 
+    A point p_i fixed to joint j moves by (R_t - R_0) p_i + (o_t - o_0) from sample 0 to
+    sample t (R, o: the joint's placements); the squared lengths are compared, and the
+    square root taken of the largest (on a tie, the first sample, then the first point).
+
     Args:
         robot: The robot.
         points: Its points (:func:`sample_arm_points`).
         q_traj: Configurations [rad], shape (T, n), T >= 1; the first is the reference (the
             stop signal).
         swept: Whether to return every point's positions (for a 3D drawing; T x k x 3
-            floats); without it the samples are taken :data:`CHUNK` at a time.
+            floats); the displacements are formed :data:`CHUNK` samples at a time.
     """
     qs = np.atleast_2d(np.asarray(q_traj, dtype=float))
-    start = _positions(robot.model, points, qs[:1])[0]
+    R, p = joint_placements(robot, qs)
     best, index, sample = 0.0, 0, 0
-    kept = []
     for first in range(0, len(qs), CHUNK):
-        now = _positions(robot.model, points, qs[first : first + CHUNK])
-        if swept:
-            kept.append(now)
-        distance = np.linalg.norm(now - start, axis=2)
-        row, i = np.unravel_index(int(np.argmax(distance)), distance.shape)
-        if distance[row, i] > best:
-            best, index, sample = float(distance[row, i]), int(i), first + int(row)
+        chunk = slice(first, first + CHUNK)
+        step = _place(points, R[chunk] - R[:1], p[chunk] - p[:1])
+        squared = np.einsum("kit,kit->kt", step, step)
+        largest = float(np.max(squared))
+        if largest > best:
+            ks, ts = np.divmod(np.flatnonzero(squared == largest), squared.shape[1])
+            first_hit = np.lexsort((ks, ts))[0]
+            best, index, sample = largest, int(ks[first_hit]), first + int(ts[first_hit])
     link = points.links[int(points.link[index])]
-    return ArmDisplacement(best, index, link, sample, np.concatenate(kept) if swept else None)
+    kept = np.ascontiguousarray(_place(points, R, p).transpose(2, 0, 1)) if swept else None
+    return ArmDisplacement(math.sqrt(best), index, link, sample, kept)
