@@ -211,8 +211,8 @@ class _LaneDynamics:
     """The dynamics of lanes with models of their own (that differ only in inertias: payloads).
 
     Pinocchio's parallel algorithms take one model, so each lane's model is called in turn:
-    ABA for a lane without locks (the scalar engine's call), else b and the free columns of M
-    by RNEA and M_ff a_f = tau_f - b_f, as :class:`_Dynamics` has them (the same round-off).
+    ABA for a lane without locks (the scalar engine's call), else M (CRBA) and b (RNEA) and
+    the free joints' M_ff a_f = tau_f - b_f as :class:`_Dynamics` solves them.
 
     Args:
         models: Each lane's full model (armature included), all with the same joints.
@@ -222,8 +222,6 @@ class _LaneDynamics:
         self.n = models[0].nv
         self.models = list(models)
         self.datas = [model.createData() for model in self.models]
-        self.weightless = [weightless(model) for model in self.models]
-        self.weightless_datas = [model.createData() for model in self.weightless]
         #: Pinocchio calls made (one per lane and evaluation), and the states they evaluated.
         self.calls = 0
         self.states = 0
@@ -248,18 +246,16 @@ class _LaneDynamics:
         mass = np.zeros((int(held.sum()), n, n))
         b = np.zeros((len(mass), n))
         k = 0
-        zero, unit = np.zeros(n), np.eye(n)
         for r, lane in enumerate(lanes.tolist()):
             model, data = self.models[lane], self.datas[lane]
             if not flags[r]:
                 a[r] = pin.aba(model, data, q[r], v[r], tau[r])
                 continue
-            b[k] = pin.rnea(model, data, q[r], v[r], zero)
-            light, light_data = self.weightless[lane], self.weightless_datas[lane]
-            for j in np.flatnonzero(~locked[r]).tolist():  # M e_j: RNEA at rest, no gravity
-                mass[k, :, j] = pin.rnea(light, light_data, q[r], zero, unit[j])
+            mass[k] = pin.crba(model, data, q[r])
+            b[k] = pin.rnea(model, data, q[r], v[r], np.zeros(n))
             k += 1
         if k:
+            mass = np.triu(mass) + np.swapaxes(np.triu(mass, 1), 1, 2)  # CRBA fills the upper
             a[held], lam[held] = _free_solve(mass, b, tau[held], locked[held])
         return a, lam
 
