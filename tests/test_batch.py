@@ -307,46 +307,16 @@ def test_small_study_agrees_and_counts_fallbacks(
     assert "8 cases on the scalar engine: category-1 stop (drives ramp the rates down)" in text
 
 
-def payload_scenario(mass: float, com: list[float], inertia: dict | None = None) -> vp.Scenario:
-    """The UR10 Annex-B scenario with its payload's mass [kg], centre [m], inertia [kg m^2]."""
-    raw = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
-    raw["payload"] = {"mass": mass, "com": com, **({"inertia": inertia} if inertia else {})}
-    return vp.build_scenario(raw, source="test", base_dir=SCENARIOS_DIR, name="payload")
-
-
-def test_runs_with_other_payloads_batch_together_and_agree() -> None:
-    """A gripper and part drawn per run (mass, centre of mass, inertia): one batch, each lane
-    with its own model, and every sample, event, holding torque and work of every run within
-    1e-8 of the scalar engine's; the model_key without inertias is what they share."""
-    scenarios = [
-        payload_scenario(10.0, [0.0, 0.0, 0.05]),  # the base's
-        payload_scenario(2.5, [0.01, -0.02, 0.08], {"ixx": 0.02, "iyy": 0.03, "izz": 0.01}),
-        payload_scenario(7.0, [0.0, 0.03, 0.12], {"ixx": 0.05, "iyy": 0.05, "izz": 0.02}),
-        payload_scenario(0.0, [0.0, 0.0, 0.0]),
-    ]
-    problems = [s.problem for s in scenarios]
-    keys = {model_key(p.robot.model) for p in problems}
-    assert len(keys) == 4 and len({model_key(p.robot.model, False) for p in problems}) == 1
-    integrator = scenarios[0].integrator
-    outcome = run_many(problems, [integrator] * 4, transition="kkt")
-    assert outcome.engines == ("batched",) * 4
-    for problem, result in zip(problems, outcome.results, strict=True):
-        assert isinstance(result, vp.SimulationResult)
-        assert_same_run(vp.simulate(problem, integrator, transition="kkt"), result)
-
-
-def test_payload_drawn_study_batches_and_agrees(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """A study drawing each case's payload: its cases batch together (a worker's batches are
-    a quarter of its cases, here 2, so MIN_LANES is lowered to 2 for a small test), the table
-    is the scalar engine's to 1e-8; fewer than MIN_LANES run on the scalar engine, counted."""
+def test_payload_drawn_cases_are_not_batched_alone(tmp_path: Path) -> None:
+    """Cases drawing their payload each have their own model: none is batched alone (slower
+    than the scalar engine), each runs on the scalar engine with the reason counted, and the
+    table is the scalar engine's to 1e-8; a group of MIN_LANES runs of one model is batched."""
     path = tmp_path / "study.yaml"
     path.write_text(
         yaml.safe_dump(
             {
                 "scenario": str(SCENARIOS_DIR / "ur10_annex_b.yaml"),
-                "samples": 8,
+                "samples": 4,
                 "vary": {
                     "joint": ["shoulder_pan_joint", "elbow_joint"],
                     "payload": {"min": 0.0, "max": 10.0},
@@ -355,45 +325,31 @@ def test_payload_drawn_study_batches_and_agrees(
             }
         )
     )
-    study = load_study(path)
-    scalar = run_study(study, tmp_path / "scalar", workers=1, engine="scalar", outputs=False)
-    few = run_study(study, tmp_path / "few", workers=1, outputs=False)
-    monkeypatch.setattr(batch, "MIN_LANES", 2)
-    batched = run_study(study, tmp_path / "batched", workers=1, outputs=False)
-    assert len(set(batched.table["payload"])) == 8
+    scalar, batched = run_both(path, tmp_path, outputs=False)  # the table and summary only
+    assert len(set(batched.table["payload"])) == 4
     assert_same_table(scalar.table, batched.table)
     engines = batched.summary["engines"]
-    assert (engines["batched"], engines["scalar"], engines["fallbacks"]) == (8, 0, {})
-    assert_same_table(scalar.table, few.table)
-    engines = few.summary["engines"]
     reason = FEW_LANES.format(min_lanes=MIN_LANES)
-    assert (engines["batched"], engines["scalar"]) == (0, 8)
-    assert engines["fallbacks"] == {reason: 8}
-    assert f"8 cases on the scalar engine: {reason}" in format_study(few, 1.0)
-
-
-def test_groups_below_min_lanes_run_scalar() -> None:
-    """run_many batches a group of min_lanes runs, and sends a smaller one to the scalar engine."""
+    assert (engines["batched"], engines["scalar"]) == (0, 4)
+    assert engines["fallbacks"] == {reason: 4}
+    assert f"4 cases on the scalar engine: {reason}" in format_study(batched, 1.0)
     scenario = vp.load_scenario(SCENARIOS_DIR / "ur10_annex_b.yaml")
     short = dataclasses.replace(scenario.problem, duration=0.01)
     outcome = run_many([short] * 3, [scenario.integrator] * 3, min_lanes=3)
     assert outcome.engines == ("batched",) * 3
     outcome = run_many([short] * 3, [scenario.integrator] * 3, min_lanes=4)
-    assert outcome.engines == ("scalar",) * 3
-    assert outcome.fallbacks == (FEW_LANES.format(min_lanes=4),) * 3
+    assert (
+        outcome.engines == ("scalar",) * 3
+        and outcome.fallbacks == (FEW_LANES.format(min_lanes=4),) * 3
+    )
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["ur10_annex_b", "ur5_cb3_annex_b", "ur10_brake_wear"])
 def test_shipped_studies_agree(name: str, tmp_path: Path) -> None:
-    """Every case of the shipped studies: the batched table equals the scalar one to 1e-8.
-
-    One worker: its batches (a quarter of the study) reach MIN_LANES category-0 cases, so
-    they batch (ur10_brake_wear's drawn payloads each with its own model).
-    """
-    scalar, batched = run_both(find_study(name), tmp_path, workers=1, outputs=False)
+    """Every case of the shipped studies: the batched table equals the scalar one to 1e-8."""
+    scalar, batched = run_both(find_study(name), tmp_path, workers=2)
     assert_same_table(scalar.table, batched.table)
-    assert batched.summary["engines"]["batched"] >= len(batched.table) // 3
 
 
 #: Relative agreement of the batched locked-case dynamics with the dense reference [-]: both

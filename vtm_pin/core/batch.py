@@ -21,12 +21,6 @@ is 1 + k RNEA passes (about half an ABA each) for k free joints; in a stop most 
 locked, where the k x k solve is small. The multipliers lambda are the locks' holding
 torques, which the brakes' slip events and the results need.
 
-Runs whose models differ only in their bodies' inertias (a payload drawn per case: the
-payload's spatial inertia is merged into its joint's body) share a batch too, each lane with
-its own model (:class:`_LaneDynamics`): ABA, or CRBA and RNEA with locks, called lane by lane,
-since Pinocchio's parallel algorithms take one model. A batch is given at least
-:data:`MIN_LANES` runs by a study: a smaller group is slower than the scalar engine.
-
 What the batched engine steps: intervals without frame constraints or acting drives, with
 Coulomb or viscous brakes (and ideal locks, which are transitions, not dynamics) and the
 motors' short-circuit braking, integrated by dop853.
@@ -113,12 +107,8 @@ def fallback_reason(problem: Problem, integrator: object) -> str | None:
     return None
 
 
-def model_key(model: pin.Model, inertias: bool = True) -> bytes:
-    """Bytes equal for two models with the same dynamics (inertias, placements, armature).
-
-    ``inertias=False``: equal for models that differ at most in their bodies' inertias (a
-    payload), whose runs batch together with per-lane dynamics (:class:`_LaneDynamics`).
-    """
+def model_key(model: pin.Model) -> bytes:
+    """Bytes equal for two models with the same dynamics (inertias, placements, armature)."""
     parts = [
         np.asarray(model.gravity.vector),
         np.asarray(model.armature),
@@ -129,8 +119,7 @@ def model_key(model: pin.Model, inertias: bool = True) -> bytes:
     ):
         parts.append(np.array([joint.idx_v, joint.nv], dtype=float))
         parts.append(placement.homogeneous.ravel())
-        if inertias:
-            parts.append(inertia.toDynamicParameters())
+        parts.append(inertia.toDynamicParameters())
     return b"".join(np.ascontiguousarray(p, dtype=float).tobytes() for p in parts) + b"".join(
         str(joint).encode() for joint in model.joints
     )
@@ -163,12 +152,7 @@ class _Dynamics:
         return np.asarray(out).reshape(self.n, len(q)).T
 
     def accelerations(
-        self,
-        q: np.ndarray,
-        v: np.ndarray,
-        tau: np.ndarray,
-        locked: np.ndarray,
-        lanes: np.ndarray | None = None,
+        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, locked: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Accelerations [rad/s^2] (0 at locked joints) and holding torques [N m] (0 at free).
 
@@ -177,7 +161,6 @@ class _Dynamics:
             v: Rates, shape (B, n), exactly 0 at locked joints.
             tau: Applied torques, shape (B, n), 0 at locked joints.
             locked: Lock masks, shape (B, n).
-            lanes: The lanes of the rows (unused: every lane has this model).
         """
         a = np.zeros_like(q)
         lam = np.zeros_like(q)
@@ -204,82 +187,13 @@ class _Dynamics:
         columns[lane, :, joint] = self._call(
             pin.rneaInParallel, self.weightless, q[lane], unit * 0.0, unit
         )
-        return _free_solve(columns, b, tau, locked)
-
-
-class _LaneDynamics:
-    """The dynamics of lanes with models of their own (that differ only in inertias: payloads).
-
-    Pinocchio's parallel algorithms take one model, so each lane's model is called in turn:
-    ABA for a lane without locks (the scalar engine's call), else M (CRBA) and b (RNEA) and
-    the free joints' M_ff a_f = tau_f - b_f as :class:`_Dynamics` solves them.
-
-    Args:
-        models: Each lane's full model (armature included), all with the same joints.
-    """
-
-    def __init__(self, models: Sequence[pin.Model]) -> None:
-        self.n = models[0].nv
-        self.models = list(models)
-        self.datas = [model.createData() for model in self.models]
-        #: Pinocchio calls made (one per lane and evaluation), and the states they evaluated.
-        self.calls = 0
-        self.states = 0
-
-    def accelerations(
-        self,
-        q: np.ndarray,
-        v: np.ndarray,
-        tau: np.ndarray,
-        locked: np.ndarray,
-        lanes: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_Dynamics.accelerations`, with the lanes of the rows (which model each has)."""
-        assert lanes is not None
-        a = np.zeros_like(q)
-        lam = np.zeros_like(q)
-        self.calls += len(q)
-        self.states += len(q)
-        held = np.asarray(locked.any(axis=1))
-        flags = held.tolist()
-        n = self.n
-        mass = np.zeros((int(held.sum()), n, n))
-        b = np.zeros((len(mass), n))
-        k = 0
-        for r, lane in enumerate(lanes.tolist()):
-            model, data = self.models[lane], self.datas[lane]
-            if not flags[r]:
-                a[r] = pin.aba(model, data, q[r], v[r], tau[r])
-                continue
-            mass[k] = pin.crba(model, data, q[r])
-            b[k] = pin.rnea(model, data, q[r], v[r], np.zeros(n))
-            k += 1
-        if k:
-            mass = np.triu(mass) + np.swapaxes(np.triu(mass, 1), 1, 2)  # CRBA fills the upper
-            a[held], lam[held] = _free_solve(mass, b, tau[held], locked[held])
+        both = free[:, :, None] & free[:, None, :]
+        system = np.where(both, columns, 0.0) + locked[:, :, None] * np.eye(n)
+        a = _solve_each(system, np.where(free, tau - b, 0.0))
+        a[locked] = 0.0
+        lam = np.einsum("rij,rj->ri", columns, a) + b - tau
+        lam[free] = 0.0
         return a, lam
-
-
-def _free_solve(
-    columns: np.ndarray, b: np.ndarray, tau: np.ndarray, locked: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """a_f from M_ff a_f = tau_f - b_f and lambda_L = M_Lf a_f + b_L - tau_L, per state.
-
-    Args:
-        columns: M, shape (B, n, n); only its free columns are used.
-        b: RNEA(q, v, 0), shape (B, n) [N m].
-        tau: Applied torques, shape (B, n) [N m].
-        locked: Lock masks, shape (B, n).
-    """
-    n = b.shape[1]
-    free = ~locked
-    both = free[:, :, None] & free[:, None, :]
-    system = np.where(both, columns, 0.0) + locked[:, :, None] * np.eye(n)
-    a = _solve_each(system, np.where(free, tau - b, 0.0))
-    a[locked] = 0.0
-    lam = np.einsum("rij,rj->ri", columns, a) + b - tau
-    lam[free] = 0.0
-    return a, lam
 
 
 def _solve_each(A: np.ndarray, rhs: np.ndarray) -> np.ndarray:
@@ -383,14 +297,13 @@ class BatchEngine:
     """Runs of one model stepped together (see the module docstring).
 
     Args:
-        model: The runs' full model (all runs share its dynamics: :func:`model_key`; runs
-            with other inertias are given :class:`_LaneDynamics` in its place).
+        model: The runs' full model (all runs share its dynamics: :func:`model_key`).
         integrator: The dop853 settings every run uses.
         threads: Threads of Pinocchio's parallel algorithms.
     """
 
     def __init__(self, model: pin.Model, integrator: DOP853, threads: int = 1) -> None:
-        self.dynamics: _Dynamics | _LaneDynamics = _Dynamics(model, threads)
+        self.dynamics = _Dynamics(model, threads)
         self.integrator = integrator
         #: Called with each run as soon as it has its outcome (see :func:`run_many`).
         self.finished: Callable[[_Run], None] | None = None
@@ -418,7 +331,7 @@ class BatchEngine:
         tau_short = short_circuit_torque(
             ratio, lanes.short_torque[rows], lanes.short_speed[rows], v
         )
-        a, lam = self.dynamics.accelerations(q, v, tau + tau_short, lanes.locked[rows], rows)
+        a, lam = self.dynamics.accelerations(q, v, tau + tau_short, lanes.locked[rows])
         out = np.zeros_like(y)
         out[:, :n] = v
         out[:, n : 2 * n] = a
@@ -1015,9 +928,8 @@ def run_many(
 ) -> BatchOutcome:
     """Run many problems; the batched engine takes those it can (see :func:`fallback_reason`).
 
-    Runs whose models have the same joints (:func:`model_key` without inertias) and the same
-    integrator settings advance together; if their inertias differ (payloads), each lane
-    with its own model. A run's ``wall_time`` is its share of its batch's time.
+    Runs whose models have the same dynamics (:func:`model_key`) and the same integrator
+    settings advance together. A run's ``wall_time`` is its share of its batch's time.
     Groups of fewer than ``min_lanes`` runs go to the scalar engine (reason
     :data:`FEW_LANES`): a batch of a few lanes is slower than the scalar engine.
 
@@ -1062,10 +974,7 @@ def run_many(
             _Run(i, problems[i], integrator, transition)  # type: ignore[arg-type]
             for i in indices
         ]
-        models = [problems[i].robot.model for i in indices]
-        batch = BatchEngine(models[0], integrator, threads)  # type: ignore[arg-type]
-        if len({model_key(model) for model in models}) > 1:  # payloads: a model per lane
-            batch.dynamics = _LaneDynamics(models)
+        batch = BatchEngine(problems[indices[0]].robot.model, integrator, threads)  # type: ignore[arg-type]
         _run_batch(batch, runs, problems, reasons, on_done, started)
         elapsed = time.perf_counter() - started
         parts = {**batch.seconds, "stepping": elapsed - sum(batch.seconds.values())}
@@ -1099,14 +1008,14 @@ def _groups(
     reasons: list[str | None],
     min_lanes: int,
 ) -> dict[tuple[bytes, object], list[int]]:
-    """The batches: the runs of one model's joints and integrator, at least ``min_lanes``.
+    """The batches: indices of the runs of one model and integrator, at least ``min_lanes``.
 
     The runs of smaller groups are given the reason :data:`FEW_LANES` (in ``reasons``).
     """
     groups: dict[tuple[bytes, object], list[int]] = {}
     for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
         if reason is None:
-            key = (model_key(problem.robot.model, inertias=False), integrators[index])
+            key = (model_key(problem.robot.model), integrators[index])
             groups.setdefault(key, []).append(index)
     for key, indices in list(groups.items()):
         if len(indices) < min_lanes:
