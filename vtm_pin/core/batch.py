@@ -64,7 +64,8 @@ ENGINES = ("batched", "scalar")
 #: Fewest runs of one model a study gives a batch: fewer run faster on the scalar engine.
 #: Measured (issue 27, UR10 Annex-B category-0 runs, one process, OMP_NUM_THREADS=1, a shared
 #: and loaded machine): a batch of n runs takes, per run, 3.2x the scalar engine's time at
-#: n = 1, 1.4-1.8x at n = 4-12, 1.1x at 16, 0.95x at 24 and 0.6x at 64.
+#: n = 1, 1.4-1.8x at n = 4-12, 1.1x at 16, 0.95x at 24 and 0.6x at 64 (0.95x at 16 and
+#: 0.75x at 64 on a quieter one).
 MIN_LANES = 16
 #: Why a run whose model too few runs of the batch share went to the scalar engine.
 FEW_LANES = "fewer than {min_lanes} runs of its model in the batch (the scalar engine is faster)"
