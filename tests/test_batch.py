@@ -21,7 +21,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import vtm_pin as vp
-from vtm_pin.core.batch import _Dynamics, fallback_reason, model_key, run_many, simulate_many
+from vtm_pin.core import batch
+from vtm_pin.core.batch import (
+    FEW_LANES,
+    MIN_LANES,
+    _Dynamics,
+    fallback_reason,
+    model_key,
+    run_many,
+    simulate_many,
+)
 from vtm_pin.exceptions import SimulationError, VtmError
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.numerics.integrators import DOP853, RK4
@@ -239,11 +248,13 @@ def _numeric(table: pd.DataFrame) -> list[str]:
     return [c for c in table.columns if table[c].dtype.kind == "f" and c != "wall_time"]
 
 
-def run_both(study_path: Path, tmp_path: Path, workers: int = 1) -> tuple:
+def run_both(study_path: Path, tmp_path: Path, workers: int = 1, outputs: bool = True) -> tuple:
     study = load_study(study_path)
-    scalar = run_study(study, tmp_path / "scalar", workers=workers, engine="scalar")
-    batched = run_study(study, tmp_path / "batched", workers=workers, engine="batched")
-    return scalar, batched
+    runs = [
+        run_study(study, tmp_path / engine, workers=workers, engine=engine, outputs=outputs)
+        for engine in ("scalar", "batched")
+    ]
+    return tuple(runs)
 
 
 def assert_same_table(scalar: pd.DataFrame, batched: pd.DataFrame) -> None:
@@ -255,8 +266,14 @@ def assert_same_table(scalar: pd.DataFrame, batched: pd.DataFrame) -> None:
         assert np.nanmax(np.abs(a - b), initial=0.0) <= TOLERANCE, column
 
 
-def test_small_study_agrees_and_counts_fallbacks(tmp_path: Path) -> None:
-    """A study's table is the same with either engine; category-1 cases fall back, counted."""
+def test_small_study_agrees_and_counts_fallbacks(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A study's table is the same with either engine; category-1 cases fall back, counted.
+
+    Its batches (4 runs of a model) are below MIN_LANES: lowered to 1 so that they batch.
+    """
+    monkeypatch.setattr(batch, "MIN_LANES", 1)
     path = tmp_path / "study.yaml"
     path.write_text(
         yaml.safe_dump(
@@ -290,12 +307,55 @@ def test_small_study_agrees_and_counts_fallbacks(tmp_path: Path) -> None:
     assert "8 cases on the scalar engine: category-1 stop (drives ramp the rates down)" in text
 
 
+def test_payload_drawn_cases_are_not_batched_alone(tmp_path: Path) -> None:
+    """Cases drawing their payload each have their own model: none is batched alone (slower
+    than the scalar engine), each runs on the scalar engine with the reason counted, and the
+    table is the scalar engine's to 1e-8; a group of MIN_LANES runs of one model is batched."""
+    path = tmp_path / "study.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "scenario": str(SCENARIOS_DIR / "ur10_annex_b.yaml"),
+                "samples": 4,
+                "vary": {
+                    "joint": ["shoulder_pan_joint", "elbow_joint"],
+                    "payload": {"min": 0.0, "max": 10.0},
+                    "extension": {"min": 0.5, "max": 1.0},
+                },
+            }
+        )
+    )
+    scalar, batched = run_both(path, tmp_path, outputs=False)  # the table and summary only
+    assert len(set(batched.table["payload"])) == 4
+    assert_same_table(scalar.table, batched.table)
+    engines = batched.summary["engines"]
+    reason = FEW_LANES.format(min_lanes=MIN_LANES)
+    assert (engines["batched"], engines["scalar"]) == (0, 4)
+    assert engines["fallbacks"] == {reason: 4}
+    assert f"4 cases on the scalar engine: {reason}" in format_study(batched, 1.0)
+    scenario = vp.load_scenario(SCENARIOS_DIR / "ur10_annex_b.yaml")
+    short = dataclasses.replace(scenario.problem, duration=0.01)
+    outcome = run_many([short] * 3, [scenario.integrator] * 3, min_lanes=3)
+    assert outcome.engines == ("batched",) * 3
+    outcome = run_many([short] * 3, [scenario.integrator] * 3, min_lanes=4)
+    assert (
+        outcome.engines == ("scalar",) * 3
+        and outcome.fallbacks == (FEW_LANES.format(min_lanes=4),) * 3
+    )
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["ur10_annex_b", "ur5_cb3_annex_b", "ur10_brake_wear"])
-def test_shipped_studies_agree(name: str, tmp_path: Path) -> None:
-    """Every case of the shipped studies: the batched table equals the scalar one to 1e-8."""
-    scalar, batched = run_both(find_study(name), tmp_path, workers=2)
+def test_shipped_studies_agree(name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every case of the shipped studies: the batched table equals the scalar one to 1e-8.
+
+    Their batches of one model are below MIN_LANES: lowered to 1 (in this process, so one
+    worker) so that the batched engine runs them.
+    """
+    monkeypatch.setattr(batch, "MIN_LANES", 1)
+    scalar, batched = run_both(find_study(name), tmp_path, workers=1, outputs=False)
     assert_same_table(scalar.table, batched.table)
+    assert batched.summary["engines"]["batched"] > 0
 
 
 #: Relative agreement of the batched locked-case dynamics with the dense reference [-]: both

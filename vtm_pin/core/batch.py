@@ -56,6 +56,14 @@ from .results import SimulationResult
 from .simulation import SegmentRequest, hybrid_run
 
 ENGINES = ("batched", "scalar")
+#: Fewest runs of one model a study gives a batch: fewer run faster on the scalar engine.
+#: Measured (issue 27, UR10 Annex-B category-0 runs, one process, OMP_NUM_THREADS=1, a shared
+#: and loaded machine): a batch of n runs takes, per run, 3.2x the scalar engine's time at
+#: n = 1, 1.4-1.8x at n = 4-12, 1.1x at 16, 0.95x at 24 and 0.6x at 64 (0.95x at 16 and
+#: 0.75x at 64 on a quieter one).
+MIN_LANES = 16
+#: Why a run whose model too few runs of the batch share went to the scalar engine.
+FEW_LANES = "fewer than {min_lanes} runs of its model in the batch (the scalar engine is faster)"
 #: Where a batch's wall time goes: the Pinocchio calls with the small solves of locked runs,
 #: the runs' hybrid loops (brake decisions, locks, traces), event location on the dense
 #: output, and the rest: the vectorised step control and dense output in NumPy (and the
@@ -867,11 +875,14 @@ def run_many(
     engine: str = "batched",
     threads: int = 1,
     on_done: OnDone | None = None,
+    min_lanes: int = 1,
 ) -> BatchOutcome:
     """Run many problems; the batched engine takes those it can (see :func:`fallback_reason`).
 
     Runs whose models have the same dynamics (:func:`model_key`) and the same integrator
     settings advance together. A run's ``wall_time`` is its share of its batch's time.
+    Groups of fewer than ``min_lanes`` runs go to the scalar engine (reason
+    :data:`FEW_LANES`): a batch of a few lanes is slower than the scalar engine.
 
     Args:
         problems: The runs.
@@ -885,6 +896,7 @@ def run_many(
             as its ``wall_time`` the batch's time since the batch's previous run ended (these
             add up to the batch's time); the outcome returned at the end has equal shares of
             it. An error it raises ends the call.
+        min_lanes: Fewest runs a batch is given (a study's runner uses :data:`MIN_LANES`).
 
     Raises:
         SimulationError: An unknown engine.
@@ -897,11 +909,9 @@ def run_many(
         "engine scalar chosen" if engine == "scalar" else fallback_reason(p, i)
         for p, i in zip(problems, integrators, strict=True)
     ]
-    groups: dict[tuple[bytes, object], list[int]] = {}
+    groups = _groups(problems, integrators, reasons, min_lanes)
     for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
         if reason is None:
-            key = (model_key(problem.robot.model), integrators[index])
-            groups.setdefault(key, []).append(index)
             continue
         results[index] = _simulate_one(problem, integrators[index], transition)
         if on_done is not None:
@@ -941,6 +951,29 @@ def run_many(
         calls=calls,
         states=states,
     )
+
+
+def _groups(
+    problems: Sequence[Problem],
+    integrators: Sequence[object],
+    reasons: list[str | None],
+    min_lanes: int,
+) -> dict[tuple[bytes, object], list[int]]:
+    """The batches: indices of the runs of one model and integrator, at least ``min_lanes``.
+
+    The runs of smaller groups are given the reason :data:`FEW_LANES` (in ``reasons``).
+    """
+    groups: dict[tuple[bytes, object], list[int]] = {}
+    for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
+        if reason is None:
+            key = (model_key(problem.robot.model), integrators[index])
+            groups.setdefault(key, []).append(index)
+    for key, indices in list(groups.items()):
+        if len(indices) < min_lanes:
+            del groups[key]
+            for index in indices:
+                reasons[index] = FEW_LANES.format(min_lanes=min_lanes)
+    return groups
 
 
 def _run_batch(

@@ -199,7 +199,7 @@ def _run_group(
 
     A case's record is completed and kept as soon as its runs have ended.
     """
-    from ..core.batch import run_many
+    from ..core.batch import MIN_LANES, run_many
 
     runs = [(k, s) for k, (_, scenario, extra) in enumerate(items) for s in (scenario, *extra)]
     ended: list[list[Any]] = [[] for _ in items]  # per case: (scenario, result, reason, share)
@@ -219,6 +219,7 @@ def _run_group(
             transition=transition,
             engine=engine,
             on_done=on_done,
+            min_lanes=MIN_LANES,
         )
     except OutputError:
         raise
