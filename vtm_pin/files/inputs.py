@@ -511,8 +511,10 @@ def _unit(schema: Mapping[str, Any]) -> str:
     return "" if unit in ("-", "") else f" {unit}"
 
 
-def find_shipped(spec: str | Path, folder: Path, what: str, error: type[InputError]) -> Path:
-    """The file ``spec`` names: an existing path, else the name of a ``.yaml`` in ``folder``.
+def find_shipped(
+    spec: str | Path, folder: Path, what: str, error: type[InputError], suffix: str = ".yaml"
+) -> Path:
+    """The file ``spec`` names: an existing path, else the name of a ``suffix`` file in ``folder``.
 
     A path that exists wins; otherwise a bare name (``pendulum3r``, or ``pendulum3r.yaml``)
     names a file shipped in ``folder``. Any other path is returned as it is, so that reading
@@ -524,14 +526,14 @@ def find_shipped(spec: str | Path, folder: Path, what: str, error: type[InputErr
     """
     path = Path(spec)
     try:
-        if path.exists() or len(path.parts) != 1 or path.suffix not in ("", ".yaml"):
+        if path.exists() or len(path.parts) != 1 or path.suffix not in ("", suffix):
             return path
-        shipped = folder / f"{path.stem}.yaml"
+        shipped = folder / f"{path.stem}{suffix}"
         if shipped.is_file():
             return shipped
     except (OSError, ValueError):  # a name too long for a path, or with a NUL in it
         return path
-    names = ", ".join(sorted(p.stem for p in folder.glob("*.yaml"))) or "none"
+    names = ", ".join(sorted(p.stem for p in folder.glob(f"*{suffix}"))) or "none"
     raise error(
         excerpt(str(spec)), "", f"no such file, and not the name of a shipped {what} ({names})"
     )

@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 
 from ..exceptions import InputError, excerpt
-from ..files.inputs import open_regular
+from ..files.inputs import find_shipped, open_regular
 from ..physics.robot import Robot
 
 #: Most rows a program may have (a 10-minute program sampled at 4 ms has 150,000).
@@ -86,19 +86,7 @@ def find_program(spec: str | Path) -> Path:
         InputError: ``spec`` is a bare name that is neither a file nor a shipped program; the
             message lists the shipped ones.
     """
-    path = Path(spec)
-    try:
-        if path.exists() or len(path.parts) != 1 or path.suffix not in ("", ".csv"):
-            return path
-        shipped = PROGRAMS_DIR / f"{path.stem}.csv"
-        if shipped.is_file():
-            return shipped
-    except (OSError, ValueError):  # a name too long for a path, or with a NUL in it
-        return path
-    names = ", ".join(sorted(p.stem for p in PROGRAMS_DIR.glob("*.csv"))) or "none"
-    raise InputError(
-        excerpt(str(spec)), "", f"no such file, and not the name of a shipped program ({names})"
-    )
+    return find_shipped(spec, PROGRAMS_DIR, "program", InputError, ".csv")
 
 
 @dataclass(frozen=True, eq=False)
