@@ -11,7 +11,7 @@ import sys
 import textwrap
 import time
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from importlib.metadata import version
 from pathlib import Path
@@ -446,6 +446,21 @@ def _program_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
     program.set_defaults(func=_program)
 
 
+@contextmanager
+def _case_bar(name: str, show: bool) -> Iterator[Callable[[int, int], None]]:
+    """A progress bar of cases on stderr (shown on a terminal only); it goes when the block ends."""
+    bar = tqdm(desc=name, unit="case", file=sys.stderr, disable=not show, smoothing=0.1)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    try:
+        yield progress
+    finally:
+        bar.close()
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -466,36 +481,28 @@ def _program(args: argparse.Namespace) -> int:
     except OutputError as exc:
         raise StudyError("command line", "--out", exc.problem) from exc
     show = not (args.quiet or args.json) and sys.stderr.isatty()
-    bar = tqdm(desc=study.name, unit="case", file=sys.stderr, disable=not show, smoothing=0.1)
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
-
     begin = time.perf_counter()
     try:
-        output = run_program(
-            study,
-            out,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            progress=progress,
-            engine=args.engine,
-            within=args.within,
-            figure=args.figure,
-            tolerance=args.tolerance,
-        )
+        with _case_bar(study.name, show) as progress:
+            output = run_program(
+                study,
+                out,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                progress=progress,
+                engine=args.engine,
+                within=args.within,
+                figure=args.figure,
+                tolerance=args.tolerance,
+            )
     except KeyboardInterrupt:
         forget_interrupt()
-        bar.close()
         print(
             f"vtm-pin: interrupted; the finished cases are stored in {out}; run the same "
             "command again to continue",
             file=sys.stderr,
         )
         return EXIT_INTERRUPTED
-    finally:
-        bar.close()
     if args.json:
         print(json.dumps(output.summary, indent=2, allow_nan=False))
     elif not args.quiet:
@@ -645,25 +652,19 @@ def _study(args: argparse.Namespace) -> int:
         raise StudyError("command line", "--out", exc.problem) from exc
     _confirm_size(study, args.yes)
     show = not (args.quiet or args.json) and sys.stderr.isatty()
-    bar = tqdm(desc=study.name, unit="case", file=sys.stderr, disable=not show, smoothing=0.1)
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
-
     begin = time.perf_counter()
     try:
-        output = run_study(
-            study,
-            out,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            progress=progress,
-            engine=args.engine,
-        )
+        with _case_bar(study.name, show) as progress:
+            output = run_study(
+                study,
+                out,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                progress=progress,
+                engine=args.engine,
+            )
     except KeyboardInterrupt:
         forget_interrupt()
-        bar.close()
         stored = len(list((Path(out) / CASES_FOLDER).glob("*.json")))
         print(
             f"vtm-pin: interrupted; {stored} finished cases are stored in {out}; run the same "
@@ -671,8 +672,6 @@ def _study(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_INTERRUPTED
-    finally:
-        bar.close()
     if args.json:
         print(json.dumps(output.summary, indent=2, allow_nan=False))
     elif not args.quiet:
