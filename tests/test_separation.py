@@ -60,12 +60,27 @@ def test_separation_distances_by_hand_from_a_case():
     moved = np.linalg.norm(np.array(positions) - np.array(positions[0]), axis=2)
     S_arm = float(moved.max())
     assert S_arm >= S_s
-    S_p = 1.6 * (T_r + T_robot) + v_r * T_r + S_arm + 0.208 + 0.1 + 0.02
+
+    # v_r of S_p is the fastest arm point's speed at the signal, by central differences of the
+    # points' positions along v (step 1e-6 s: truncation ~1e-12 m/s, round-off ~1e-9 m/s)
+    def place(q):
+        pin.forwardKinematics(model, data, q)
+        return np.array(
+            [data.oMi[int(j)].act(x) for j, x in zip(points.joints, points.points, strict=True)]
+        )
+
+    h = 1e-6
+    q0, v0 = result.q[i0], result.v[i0]
+    speeds = np.linalg.norm(place(q0 + h * v0) - place(q0 - h * v0), axis=1) / (2 * h)
+    arm_v_r = float(speeds.max())
+    assert arm_v_r >= v_r * (1 - 1e-8)
+    S_p = 1.6 * (T_r + T_robot) + arm_v_r * T_r + S_arm + 0.208 + 0.1 + 0.02
     values = output.figures.metrics
     assert values["robot_stop_time"] == pytest.approx(T_robot, rel=1e-12)
     assert values["overall_stop_time"] == pytest.approx(T, rel=1e-12)
     assert values["iso13855_distance"] == pytest.approx(S, rel=1e-12)
-    assert values["ssm_distance"] == pytest.approx(S_p, rel=1e-12)
+    assert values["ssm_distance"] == pytest.approx(S_p, rel=1e-9)  # the differenced v_r
+    assert values["arm_speed_at_signal"] == pytest.approx(arm_v_r, rel=1e-7)
     assert values["tcp_speed_at_signal"] == pytest.approx(v_r, rel=1e-12)
     assert values["tcp_max_displacement"] == pytest.approx(S_s, rel=1e-12)
     assert values["arm_max_displacement"] == pytest.approx(S_arm, rel=1e-12)

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..core.results import SimulationResult
-from ..physics.arm_points import max_displacement, sample_arm_points
+from ..physics.arm_points import max_displacement, point_speeds, sample_arm_points
 from ..physics.kinematics import compute_tool_jacobian
 from ..standards.bounds import derived_uppers, describe, upper_bounds, variants
 from .flags import Flag, case_flags, tool_drop
@@ -50,6 +50,7 @@ METRICS = {
     "other_travel": "rad",
     "peak_tcp_speed": "m/s",
     "tcp_speed_at_signal": "m/s",
+    "arm_speed_at_signal": "m/s",
     "overall_stop_time": "s",
     "iso13855_distance": "m",
     "ssm_distance": "m",
@@ -83,15 +84,19 @@ DEFINITIONS = {
     "[rad] (Annex-B cases): the test assumes 0; the joints fall or swing during the brake "
     "delay and slide to rest after it.",
     "peak_tcp_speed": "Largest tool-frame speed after the signal [m/s].",
-    "tcp_speed_at_signal": "The tool frame's speed at the signal [m/s]: v_r of ISO/TS 15066 "
-    "during the reaction time (the drives hold the joint rates until the signal).",
+    "tcp_speed_at_signal": "The tool frame's speed at the signal [m/s] (the drives hold the "
+    "joint rates until the signal).",
+    "arm_speed_at_signal": "The largest speed of any sampled point of the arm at the signal "
+    "[m/s] (tool included, so at least tcp_speed_at_signal): v_r of ISO/TS 15066 during the "
+    "reaction time, as S_p takes it.",
     "overall_stop_time": "T [s] of ISO 13855:2024: detection + response + latency + T_robot "
     "(the scenario's safeguard key); empty without it.",
     "iso13855_distance": "S [m] of ISO 13855:2024: S = K T + D_DS + Z (separation.iso13855); "
     "empty without its inputs.",
     "ssm_distance": "S_p [m] of ISO/TS 15066: S_h + S_r + S_s + C + Z_d + Z_r "
     "(separation.iso_ts_15066 with safeguard), S_s the arm's largest displacement "
-    "(arm_max_displacement) and v_r the tool's speed at the signal; empty without its inputs.",
+    "(arm_max_displacement) and v_r the fastest arm point's speed at the signal "
+    "(arm_speed_at_signal); empty without its inputs.",
     "test_speed": "The tested joint's rate at the signal [rad/s] (annex_b cases).",
     "test_reach": "Horizontal reach of the tool frame at the signal [m] (annex_b cases).",
 }
@@ -146,13 +151,16 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     reach = float(np.max(np.linalg.norm(path - path[0], axis=1))) if len(path) else 0.0
     speed = tool_speed_at_signal(robot, result, report)
     i0 = int(np.argmax(result.t >= report.signal_time))
-    arm = max_displacement(robot, sample_arm_points(robot), result.q[i0:], swept=False)
+    points = sample_arm_points(robot)
+    arm = max_displacement(robot, points, result.q[i0:], swept=False)
     # The tool's origin is one of the arm's points: S_arm >= S_s, but the two are computed
     # apart and may differ in the last bit; keep the order exact.
     arm = dataclasses.replace(arm, distance=max(arm.distance, reach))
     # S_s of S_p is the arm's largest displacement (>= the tool's): the part of the arm that
     # reaches a person first is not always the tool, and a smaller S_s is the unsafe side.
-    separation = scenario.separation.figures(report.all_stopped_time, speed, arm.distance)
+    v_r = float(np.max(point_speeds(robot, points, result.q[i0], result.v[i0])))
+    v_r = max(v_r, speed)  # the tool is one of the points: equal up to round-off
+    separation = scenario.separation.figures(report.all_stopped_time, v_r, arm.distance)
     metrics: dict[str, float | None] = {
         "robot_stop_time": report.all_stopped_time,
         "test_stop_time": report.joints[tested].stop_time,
@@ -167,6 +175,7 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
         else None,
         "peak_tcp_speed": report.tcp_peak_speed,
         "tcp_speed_at_signal": speed,
+        "arm_speed_at_signal": v_r,
         "overall_stop_time": separation["T"],
         "iso13855_distance": separation["S"],
         "ssm_distance": separation["S_p"],
@@ -186,7 +195,7 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
         robot.joints[state.joint_index] if state is not None else None,
         scenario.tool_frame,
     )
-    chain = scenario.separation.describe(report.all_stopped_time, speed, arm.distance)
+    chain = scenario.separation.describe(report.all_stopped_time, v_r, arm.distance)
     return StopFigures("ok" if not report.moving else "not_stopped", clean, flags, chain)
 
 

@@ -353,3 +353,21 @@ def max_displacement(
     link = points.links[int(points.link[index])]
     kept = np.ascontiguousarray(_place(points, R, p).transpose(2, 0, 1)) if swept else None
     return ArmDisplacement(math.sqrt(best), index, link, sample, kept)
+
+
+def point_speeds(robot: Robot, points: ArmPoints, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The speed of each point at (q [rad], v [rad/s]), shape (k,) [m/s].
+
+    A point p fixed in joint j's frame moves at v_j + omega_j x p, the joint's spatial velocity
+    in its own frame (Pinocchio's ``data.v``); a rotation to world axes keeps its length.
+    """
+    model = robot.model
+    data = model.createData()
+    pin.forwardKinematics(model, data, np.asarray(q, dtype=float), np.asarray(v, dtype=float))
+    speeds = np.empty(len(points.points))
+    for joint in np.unique(points.joints):
+        mine = points.joints == joint
+        motion = data.v[int(joint)]
+        local = motion.linear + np.cross(motion.angular, points.points[mine])
+        speeds[mine] = np.linalg.norm(local, axis=1)
+    return speeds

@@ -317,7 +317,7 @@ def derived_uppers(
     """
     t_robot = upper.get("robot_stop_time_upper")
     reach = upper.get("arm_max_displacement_upper", upper.get("tcp_max_displacement_upper"))
-    speed = metrics.get("tcp_speed_at_signal")
+    speed = metrics.get("arm_speed_at_signal", metrics.get("tcp_speed_at_signal"))
     if t_robot is None or reach is None or speed is None:
         return {f"{name}_upper": None for name in DERIVED}
     figures = separation.figures(t_robot, speed, reach)

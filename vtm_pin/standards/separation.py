@@ -20,10 +20,10 @@ monitoring (ISO/TS 15066, now in ISO 10218-2:2025) needs the protective separati
 
 with T_r = t_detection + t_response + t_latency the robot system's reaction time, T_s =
 T_robot its stopping time, v_h the human's speed (1.6 m/s unless the user gives another), v_r
-the robot's speed toward the human during T_r (taken as the tool frame's speed at the signal:
-the drives hold the joint rates until then), S_s the distance the robot travels while it
-stops (the largest displacement of any sampled point of the arm, tool included, from where it
-was at the signal: ``arm_max_displacement``), C the
+the robot's speed toward the human during T_r (taken as the largest speed of any sampled point of
+the arm at the signal, ``arm_speed_at_signal``: the drives hold the joint rates until then), S_s the
+distance the robot travels while it stops (the largest displacement of any sampled point of the arm,
+tool included, from where it was at the signal: ``arm_max_displacement``), C the
 intrusion distance, Z_d and Z_r the position uncertainties of the human and the robot [m].
 """
 
@@ -140,7 +140,7 @@ class Separation:
 
         Args:
             robot_time: T_robot [s] (NaN if some joint still moves).
-            robot_speed: v_r, the tool frame's speed at the signal [m/s].
+            robot_speed: v_r, the fastest arm point's speed at the signal [m/s].
             stop_distance: S_s [m].
         """
         out: dict[str, float | None] = {"T_robot": _finite(robot_time)}
