@@ -237,6 +237,7 @@ def test_a_process_pool_gives_the_same_table(
     pd.testing.assert_frame_equal(physics(pooled.table), physics(table))
 
 
+@pytest.mark.slow  # ~10 s: a killed study resumed
 def test_resume_after_sigkill_equals_a_clean_run(
     small_run: tuple[Path, pd.DataFrame], tmp_path: Path
 ) -> None:

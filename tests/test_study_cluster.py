@@ -84,6 +84,7 @@ def scheduler(tmp_path: Path) -> Iterator[str]:
                 process.kill()
 
 
+@pytest.mark.slow  # ~25 s with the local Dask cluster's start and stop
 def test_a_cluster_run_equals_the_local_run(tmp_path: Path, scheduler: str) -> None:
     path = tmp_path / "study.yaml"
     vary = {"joint": ["shoulder_lift_joint", "elbow_joint"], "speed": [0.5, 1.0], "duration": [0.9]}

@@ -316,6 +316,7 @@ def test_a_refused_run_never_removes_the_folder_another_holds(tmp_path: Path) ->
 # -- staging folders of killed runs are cleaned up --------------------------------------------
 
 
+@pytest.mark.slow  # ~10 s: a killed run
 def test_a_staging_folder_left_by_a_killed_run_is_removed_by_the_next(tmp_path: Path) -> None:
     path = write_study(tmp_path, SMALL)
     out = tmp_path / "out"
