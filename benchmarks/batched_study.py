@@ -19,15 +19,12 @@ N`` runs its first N samples only (the same Halton sequence). Set ``OMP_NUM_THRE
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import yaml
+from benchlib import run_study_command as run
 
 from vtm_pin.core.batch import PARTS
 from vtm_pin.study.cases import find_study
@@ -45,18 +42,6 @@ def study_file(folder: Path, study: Path, cases: int | None) -> Path:
     path = folder / "study.yaml"
     path.write_text(yaml.safe_dump(raw, sort_keys=False))
     return path
-
-
-def run(path: Path, engine: str, workers: int) -> tuple[float, dict]:
-    """One whole command: (wall time [s], summary.json)."""
-    with tempfile.TemporaryDirectory() as folder:
-        out = Path(folder) / "out"
-        command = [sys.executable, "-m", "vtm_pin", "study", str(path), "--out", str(out)]
-        command += ["--workers", str(workers), "--engine", engine, "--quiet"]
-        begin = time.perf_counter()
-        subprocess.run(command, check=True)
-        wall = time.perf_counter() - begin
-        return wall, json.loads((out / "summary.json").read_text())
 
 
 def main() -> None:

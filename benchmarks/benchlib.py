@@ -12,11 +12,16 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
+import json
 import math
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -374,3 +379,15 @@ def plot_transition_costs(rows: Sequence[Mapping[str, float]], title: str) -> Fi
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize="small")
     return fig
+
+
+def run_study_command(path: Path, engine: str, workers: int) -> tuple[float, dict]:
+    """One whole ``vtm-pin study`` command into a fresh folder: (wall time [s], summary.json)."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "out"
+        command = [sys.executable, "-m", "vtm_pin", "study", str(path), "--out", str(out)]
+        command += ["--workers", str(workers), "--engine", engine, "--quiet"]
+        begin = time.perf_counter()
+        subprocess.run(command, check=True)
+        wall = time.perf_counter() - begin
+        return wall, json.loads((out / "summary.json").read_text())

@@ -14,14 +14,11 @@ and how many cases each engine ran (with the reasons cases left the batched engi
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import yaml
+from benchlib import run_study_command as run
 
 from vtm_pin.scene.scenario import SCENARIOS_DIR
 
@@ -43,18 +40,6 @@ def study_file(folder: Path, cases: int) -> Path:
     path = folder / "payload_study.yaml"
     path.write_text(yaml.safe_dump(study, sort_keys=False))
     return path
-
-
-def run(path: Path, engine: str, workers: int) -> tuple[float, dict]:
-    """One whole ``vtm-pin study`` command into a fresh folder: (wall time [s], summary)."""
-    with tempfile.TemporaryDirectory() as folder:
-        out = Path(folder) / "out"
-        command = [sys.executable, "-m", "vtm_pin", "study", str(path), "--out", str(out)]
-        command += ["--workers", str(workers), "--engine", engine, "--quiet"]
-        begin = time.perf_counter()
-        subprocess.run(command, check=True)
-        wall = time.perf_counter() - begin
-        return wall, json.loads((out / "summary.json").read_text())
 
 
 def main() -> None:

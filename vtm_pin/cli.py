@@ -338,29 +338,7 @@ def _study_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
         metavar="DIR",
         help="output folder (default: results/<study name>); reused to resume",
     )
-    study.add_argument(
-        "--engine",
-        choices=("batched", "scalar"),
-        default="batched",
-        help="batched (default): each worker advances many cases together, one Pinocchio call "
-        "per stage (cases it cannot take run on the scalar engine, counted in summary.json); "
-        "scalar: one case at a time",
-    )
-    where = study.add_mutually_exclusive_group()
-    where.add_argument(
-        "--workers",
-        type=_positive_int,
-        default=None,
-        metavar="N",
-        help="processes on this machine (default: all cores)",
-    )
-    where.add_argument(
-        "--scheduler",
-        default=None,
-        metavar="ADDRESS",
-        help="send the cases to this Dask scheduler, e.g. tcp://host:8786 (needs the cluster "
-        "extra; the workers need vtm_pin and the scenario's robot files)",
-    )
+    _case_options(study)
     study.add_argument(
         "--yes",
         action="store_true",
@@ -438,12 +416,36 @@ def _program_parser(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
         metavar="DF",
         help=f"bisection tolerance on F [-] (default {DEFAULT_TOLERANCE})",
     )
-    program.add_argument("--engine", choices=("batched", "scalar"), default="batched")
-    where = program.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_positive_int, default=None, metavar="N")
-    where.add_argument("--scheduler", default=None, metavar="ADDRESS")
+    _case_options(program)
     _output_options(program)
     program.set_defaults(func=_program)
+
+
+def _case_options(parser: argparse.ArgumentParser) -> None:
+    """--engine, and --workers or --scheduler: where the cases of a study or a program run."""
+    parser.add_argument(
+        "--engine",
+        choices=("batched", "scalar"),
+        default="batched",
+        help="batched (default): each worker advances many cases together, one Pinocchio call "
+        "per stage (cases it cannot take run on the scalar engine, counted in summary.json); "
+        "scalar: one case at a time",
+    )
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="processes on this machine (default: all cores)",
+    )
+    where.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="send the cases to this Dask scheduler, e.g. tcp://host:8786 (needs the cluster "
+        "extra; the workers need vtm_pin and the scenario's robot files)",
+    )
 
 
 @contextmanager
