@@ -344,6 +344,35 @@ def test_payload_drawn_cases_are_not_batched_alone(tmp_path: Path) -> None:
     )
 
 
+def test_a_runs_share_of_its_batch_leaves_out_the_callers_report() -> None:
+    """A study reports each case inside ``on_done``: that time is not the batch's.
+
+    Before, each run's share (its ``simulate`` time and the engine's ``stepping``) held the
+    reports of the runs that ended before it. The caller here takes a known 50 ms per run;
+    the shares must add up to at most the batch's wall time less those (1 ms slack for the
+    clock reads around the callbacks).
+    """
+    import time
+
+    scenario = vp.load_scenario(SCENARIOS_DIR / "ur10_annex_b.yaml")
+    short = dataclasses.replace(scenario.problem, duration=0.01)
+    pause, count = 0.05, 4
+    shares: list[dict[str, float]] = []
+
+    def on_done(index: int, result: object, reason: str | None, share: object) -> None:
+        assert reason is None and isinstance(share, dict)
+        shares.append(share)
+        time.sleep(pause)  # the caller's own work, e.g. the case's report
+
+    begin = time.perf_counter()
+    outcome = run_many([short] * count, [scenario.integrator] * count, min_lanes=1, on_done=on_done)
+    wall = time.perf_counter() - begin
+    assert len(shares) == count
+    batch_time = sum(sum(share.values()) for share in shares)
+    assert batch_time <= wall - count * pause + 1e-3
+    assert sum(outcome.seconds[p] for p in batch.PARTS) <= wall - count * pause + 1e-3
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["ur10_annex_b", "ur5_cb3_annex_b", "ur10_brake_wear"])
 def test_shipped_studies_agree(name: str, tmp_path: Path) -> None:

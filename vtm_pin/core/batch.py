@@ -926,9 +926,10 @@ def run_many(
             for i in indices
         ]
         batch = BatchEngine(problems[indices[0]].robot.model, integrator, threads)  # type: ignore[arg-type]
-        _run_batch(batch, runs, problems, reasons, on_done, started)
-        elapsed = time.perf_counter() - started
-        parts = {**batch.seconds, "stepping": elapsed - sum(batch.seconds.values())}
+        clock = _Clock(batch, started)
+        _run_batch(batch, runs, problems, reasons, on_done, clock)
+        parts = clock.parts_now()
+        elapsed = sum(parts.values())
         share = {name: value / len(runs) for name, value in parts.items()}
         for run in runs:
             outcome = run.outcome
@@ -982,11 +983,11 @@ def _run_batch(
     problems: Sequence[Problem],
     reasons: list[str | None],
     on_done: OnDone | None,
-    started: float,
+    clock: _Clock,
 ) -> None:
     """Drive ``runs`` on ``batch``; if the engine fails, the runs left go to the scalar one."""
     if on_done is not None:
-        batch.finished = functools.partial(_report, on_done, _Clock(batch, started))
+        batch.finished = functools.partial(_report, on_done, clock)
     try:
         for run in runs:
             batch.advance(run)
@@ -1007,18 +1008,24 @@ class _Clock:
     """A batch's time, handed out to its runs as they end: each gets the time since the last.
 
     The shares add up to the batch's time (its mean is the batch's time over its runs, as
-    the outcome's equal shares), and each is known when its run ends.
+    the outcome's equal shares), and each is known when its run ends. The time spent in the
+    caller's ``on_done`` (a study's report of the case) is not the batch's: it is left out.
     """
 
     def __init__(self, batch: BatchEngine, started: float) -> None:
         self.batch = batch
         self.started = started
+        self.outside = 0.0  # [s] in on_done
         self.parts = dict.fromkeys(PARTS, 0.0)
+
+    def parts_now(self) -> dict[str, float]:
+        """The batch's split [s] since it started, the callbacks' time left out."""
+        elapsed = time.perf_counter() - self.started - self.outside
+        return {**self.batch.seconds, "stepping": elapsed - sum(self.batch.seconds.values())}
 
     def share(self) -> dict[str, float]:
         """The batch's split [s] since the last call."""
-        elapsed = time.perf_counter() - self.started
-        parts = {**self.batch.seconds, "stepping": elapsed - sum(self.batch.seconds.values())}
+        parts = self.parts_now()
         share = {name: parts[name] - self.parts[name] for name in PARTS}
         self.parts = parts
         return share
@@ -1031,7 +1038,11 @@ def _report(on_done: OnDone, clock: _Clock, run: _Run) -> None:
     share = clock.share()
     if isinstance(outcome, SimulationResult):
         outcome = dataclasses.replace(outcome, wall_time=sum(share.values()))
-    on_done(run.index, outcome, None, share)
+    begin = time.perf_counter()
+    try:
+        on_done(run.index, outcome, None, share)
+    finally:
+        clock.outside += time.perf_counter() - begin
 
 
 def _simulate_one(
