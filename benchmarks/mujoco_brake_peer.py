@@ -479,7 +479,7 @@ def plot(result: dict, tolerance: float) -> Figure:
     for name in FIGURES:
         left.loglog(dts, [r["max_error"][name] for r in result["rows"]], "o-", label=name)
     left.axhline(tolerance, color="grey", ls="--", label=f"{100 * tolerance:g} %")
-    left.set(xlabel="MuJoCo dt [s]", ylabel="largest relative error over the cases [-]")
+    left.set(xlabel="MuJoCo dt [s]", ylabel="largest relative error, one-level cases [-]")
     left.legend(fontsize=8)
     right.loglog(dts, [1e3 * r["mujoco_rollout"] for r in result["rows"]], "o-", label="MuJoCo")
     for engine, style in (("batched", "-"), ("scalar", ":")):
