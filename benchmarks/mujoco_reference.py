@@ -53,6 +53,38 @@ def _spec(scenario: vp.Scenario, dt: float) -> mujoco.MjSpec:
     return spec
 
 
+def copy_link_inertias(spec: mujoco.MjSpec, robot: vp.Robot) -> None:
+    """Give each moving body of ``spec`` the inertia of its joint's body in vtm_pin's model.
+
+    vtm_pin attaches a payload by adding its spatial inertia to the body of its frame's parent
+    joint (:func:`vtm_pin.physics.payload.attach_payload`), and Pinocchio merges the links
+    fixed to a joint's link into it; copying each joint body's mass, centre of mass and
+    rotational inertia (Pinocchio's joint frame is the URDF child link's frame, which is the
+    MuJoCo body's frame) carries both over. The bodies fixed to them (``ee_link``,
+    ``tool0``) are massless in the URDFs replayed here, so MuJoCo's fusion adds nothing.
+    """
+    for joint in spec.joints:
+        inertia = robot.model.inertias[robot.model.getJointId(joint.name)]
+        body = joint.parent
+        body.explicitinertial = True
+        body.mass = float(inertia.mass)
+        body.ipos = np.asarray(inertia.lever, dtype=float)
+        body.iquat = np.array([1.0, 0.0, 0.0, 0.0])
+        rot = np.asarray(inertia.inertia, dtype=float)  # about the centre of mass, body axes
+        body.fullinertia = rot[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]
+
+
+def drop_geometry(spec: mujoco.MjSpec) -> None:
+    """Delete every geom and mesh of ``spec`` (contacts are off; inertias must be explicit).
+
+    The UR10's URDF names its meshes by ``package://`` paths, which MuJoCo cannot open.
+    """
+    for geom in list(spec.geoms):
+        spec.delete(geom)
+    for mesh in list(spec.meshes):
+        spec.delete(mesh)
+
+
 def _locked_model(scenario: vp.Scenario, dt: float, locked: dict[str, float]) -> mujoco.MjModel:
     spec = _spec(scenario, dt)
     for joint in list(spec.joints):
