@@ -643,12 +643,15 @@ class BatchEngine:
         owners: list[int] = []
         times: list[float] = []
         ends: dict[int, int] = {}
+        rests = self._locate_rests(lanes, sub, fired, F, part.h) if fired.any() else {}
         for i, b in enumerate(sub):
             run = runs[int(b)]
             t = float(lanes.t[b])
             if fired[i].any():
                 try:
-                    tau, index = self._locate(lanes, run, int(b), F[i], float(part.h[i]), fired[i])
+                    tau, index = rests.get(i) or self._locate(
+                        lanes, run, int(b), F[i], float(part.h[i]), fired[i]
+                    )
                 except Exception as exc:
                     self.advance(run, error=_as_vtm_error(exc))
                     continue
@@ -739,6 +742,91 @@ class BatchEngine:
         self.seconds["location"] += time.perf_counter() - begin
         return found
 
+    def _locate_rests(
+        self, lanes: _Lanes, sub: np.ndarray, fired: np.ndarray, F: np.ndarray, h: np.ndarray
+    ) -> dict[int, tuple[float, int]]:
+        """The earliest event of the lanes whose step only fired joints coming to rest (batched).
+
+        A sliding joint's zero-velocity event is its rate, one entry of the step's continuous
+        extension: bisection on it, all lanes at once, to :attr:`DOP853.event_tol`, ends on
+        the side after the crossing, as :func:`~vtm_pin.numerics.integrators.fixed_step.locate`
+        does with Brent's method (the two agree to the tolerance, 1e-14 s by default). The
+        earliest root is kept only if no other event of the lane has crossed by then: another
+        rate, or a stuck joint's slip margin within :data:`_MARGIN_GUARD` of zero. Lanes with
+        anything else (a slip fired, a rate starting at exactly 0, a step whose end is not
+        past zero, an earlier crossing) are left to the phase's own events: ``{}`` for them.
+
+        Returns:
+            Per index into ``sub``: (offset [s] from the step's start, event index).
+        """
+        begin = time.perf_counter()
+        n, tol = self.n, self.integrator.event_tol
+        kind = lanes.event_kind[sub]
+        g0 = lanes.y[sub, n : 2 * n]
+        simple = fired.any(axis=1) & ~(fired & (kind != 1)).any(axis=1)
+        simple &= ~(fired & (g0 == 0.0)).any(axis=1)
+        lane, joint = np.nonzero(fired & simple[:, None])
+        if lane.size == 0:
+            return {}
+        direction = lanes.event_dir[sub][lane, joint]
+        start = g0[lane, joint]
+        coef = F[lane, :, n + joint]  # (pairs, 7): the rates' continuous extensions
+
+        def rate(tau: np.ndarray) -> np.ndarray:
+            return start + np.einsum("pj,pj->p", dp.dense_weights(tau / h[lane]), coef)
+
+        lo, hi = np.zeros(lane.size), h[lane].copy()
+        ok = _crossed(start, rate(hi), direction)
+        while np.any(hi - lo > tol):
+            mid = 0.5 * (lo + hi)
+            past = _crossed(start, rate(mid), direction)
+            hi, lo = np.where(past, mid, hi), np.where(past, lo, mid)
+        found: dict[int, tuple[float, int]] = {}
+        for p in np.flatnonzero(ok):
+            i, candidate = (
+                int(lane[p]),
+                (float(hi[p]), int(lanes.event_index[sub[lane[p]], joint[p]])),
+            )
+            found[i] = min(found.get(i, candidate), candidate)
+        for i in np.flatnonzero(simple):  # every fired rate must have its root
+            if (fired[i] & ~np.isin(np.arange(n), joint[(lane == i) & ok])).any():
+                found.pop(int(i), None)
+        self._drop_earlier(lanes, sub, F, h, found)
+        self.seconds["location"] += time.perf_counter() - begin
+        return found
+
+    def _drop_earlier(
+        self,
+        lanes: _Lanes,
+        sub: np.ndarray,
+        F: np.ndarray,
+        h: np.ndarray,
+        found: dict[int, tuple[float, int]],
+    ) -> None:
+        """Drop from ``found`` the lanes where another event crossed by the root found."""
+        if not found:
+            return
+        n = self.n
+        index = np.array(list(found), dtype=int)
+        rows = sub[index]
+        tau = np.array([found[int(i)][0] for i in index])
+        x = tau / h[index]
+        y = dp.dense_value(F[index], x, lanes.y[rows], _LANES)
+        kind = lanes.event_kind[rows]
+        first = np.array([found[int(i)][1] for i in index])
+        own = lanes.event_index[rows] == first[:, None]
+        rates = _crossed(lanes.y[rows, n : 2 * n], y[:, n : 2 * n], lanes.event_dir[rows])
+        bad = (rates & (kind == 1) & ~own).any(axis=1)
+        slips = (kind == 2).any(axis=1)
+        if slips.any():
+            _, lam = self.rhs(lanes, rows[slips], lanes.t[rows[slips]] + tau[slips], y[slips])
+            g = self._g(lanes, rows[slips], lanes.t[rows[slips]] + tau[slips], y[slips], lam)
+            scale = np.maximum(1.0, np.max(np.abs(lam), axis=1))
+            near = (kind[slips] == 2) & ~(g > _MARGIN_GUARD * scale[:, None])
+            bad[slips] |= near.any(axis=1)
+        for i in index[bad]:
+            del found[int(i)]
+
     def _dense_coefficients(self, lanes: _Lanes, rows: np.ndarray, step: _Step) -> np.ndarray:
         """The 7th-order continuous extensions' coefficients F, shape (B, 7, ny)."""
 
@@ -811,6 +899,12 @@ class _Step:
 
     def select(self, mask: np.ndarray) -> _Step:
         return _Step(self.h[mask], self.last[mask], self.err[mask], self.K[mask], self.y_new[mask])
+
+
+#: A stuck joint's slip margin counts as clear of zero at a located rest, for the batched
+#: location, above this fraction of the largest holding torque (at least 1 N m): the phase's own
+#: margin, which the scalar location uses, differs from the batched one by round-off only.
+_MARGIN_GUARD = 1e-6
 
 
 def _ramp_factor(lanes: _Lanes, rows: np.ndarray, t: np.ndarray) -> np.ndarray:
