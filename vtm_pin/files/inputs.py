@@ -331,7 +331,9 @@ def check_schema(
     top = valid is not None and isinstance(raw, Mapping) and set(schema) <= _TOP_LEVEL
     # Over MAX_NODES values in all, the whole walk below refuses the document, as it would.
     if valid is not None and top and _size_beside(raw, valid) <= MAX_NODES:
-        raw, schema = _prune(raw, valid, schema)
+        raw, schema, done = _prune(raw, valid, schema)
+        if done:  # what differs from valid passes: no key left to check
+            return
     _check_keys(raw, source, error, root)
     errors = sorted(
         _Validator(schema).iter_errors(raw),
@@ -353,33 +355,65 @@ def check_schema(
 _TOP_LEVEL = {"type", "additionalProperties", "required", "properties", "description"}
 
 
-def _prune(raw: Any, valid: Any, schema: Any) -> tuple[Any, Any]:
-    """``raw`` without the values it shares with ``valid``, and ``schema`` to check the rest.
+def _prune(raw: Any, valid: Any, schema: Any) -> tuple[Any, Any, bool]:
+    """What of ``raw`` is left to check against ``schema``: (value, schema, whether it passes).
 
-    Only where the schema checks a mapping key by key (:data:`_TOP_LEVEL`): a value equal to
-    ``valid``'s there passed the same sub-schema, so it is dropped (its key no longer missing),
-    and a mapping that differs is pruned in turn (under its ``properties`` entry). Key paths,
-    the sub-schemas met and so the errors and their order are those of the whole check.
+    Where the schema checks a mapping key by key (:data:`_TOP_LEVEL`), a value the same as
+    ``valid``'s there (which passed that sub-schema) is dropped, its key no longer missing; so
+    is a plain value that passes its plain sub-schema (:func:`_passes_alone`), and a mapping
+    with nothing left to check; a mapping that differs is pruned in turn. Key paths, the
+    sub-schemas met, and so the errors and their order are those of the whole check.
     """
+    if _passes_alone(raw, schema):
+        return raw, schema, True
     if not (
         isinstance(raw, Mapping)
-        and isinstance(valid, Mapping)
         and isinstance(schema, Mapping)
         and set(schema) <= _TOP_LEVEL
+        and schema.get("type", "object") == "object"
     ):
-        return raw, schema
-    properties = schema.get("properties", {})
+        return raw, schema, False
+    known = valid if isinstance(valid, Mapping) else {}
+    properties, extra = schema.get("properties", {}), schema.get("additionalProperties")
     kept, inner = {}, {}
     for key, value in raw.items():
-        if key in valid and _same(value, valid[key]):
+        if key in known and _same(value, known[key]):
             continue
-        if key in properties and key in valid:
-            value, inner[key] = _prune(value, valid[key], properties[key])
-        kept[key] = value
+        if key in properties:
+            value, inner[key], done = _prune(value, known.get(key), properties[key])
+        else:  # checked whole unless it passes whole
+            done = isinstance(key, str) and _prune(value, known.get(key), extra)[2]
+        if not done:
+            kept[key] = value
     pruned = {**schema, "properties": {**properties, **inner}} if inner else dict(schema)
     if "required" in schema:
-        pruned["required"] = [key for key in schema["required"] if key in kept or key not in raw]
-    return kept, pruned
+        pruned["required"] = [key for key in schema["required"] if key not in raw]
+    return kept, pruned, not kept and not pruned.get("required")
+
+
+#: Keywords of a plain value's schema that :func:`_passes_alone` decides.
+_PLAIN = {"type", "minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "description"}
+
+
+def _passes_alone(value: Any, schema: Any) -> bool:
+    """Whether ``value`` surely passes a plain schema: a string, or a number within bounds.
+
+    False when unsure (another keyword, another type, a value that fails): the validator
+    then decides, and words the error.
+    """
+    if not isinstance(schema, Mapping) or not set(schema) <= _PLAIN:
+        return False
+    kind = schema.get("type")
+    if kind == "string":
+        return isinstance(value, str)  # bounds apply to numbers only
+    if not (kind == "number" and _is_number(None, value)) and not (
+        kind == "integer" and _is_integer(None, value)
+    ):
+        return False
+    low, high = schema.get("minimum", -math.inf), schema.get("maximum", math.inf)
+    above = schema.get("exclusiveMinimum", -math.inf)
+    below = schema.get("exclusiveMaximum", math.inf)
+    return bool(low <= value <= high and above < value < below)
 
 
 def _same(value: Any, known: Any) -> bool:
