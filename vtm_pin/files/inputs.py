@@ -320,28 +320,21 @@ def check_schema(
         error: Exception class raised.
         root: Key path of ``raw`` in its file ("" for a whole file, ``integrator`` for that
             part of a scenario).
-        valid: A document known to pass ``schema``. Top-level values of ``raw`` equal to its
-            own are not checked again (a study's cases differ from their base in a few keys);
-            the top level itself (required and unknown keys) always is.
+        valid: A document known to pass ``schema`` (and not modified since). Top-level values
+            of ``raw`` equal to its own (the same object, or the same repr) are not checked
+            nor walked again (a study's cases differ from their base in a few keys); the top
+            level itself (required and unknown keys) always is.
 
     Raises:
         InputError: (as ``error``) naming the key path, the value and what is allowed.
     """
-    # Over MAX_NODES values in all, the whole walk below refuses the document, as it would.
     top = valid is not None and isinstance(raw, Mapping) and set(schema) <= _TOP_LEVEL
-    if valid is not None and top and _size(raw) <= MAX_NODES:
-        # repr, not ==: 0 == False and 1 == 1.0, but the schema tells them apart
-        same = {
-            key for key, value in raw.items() if key in valid and repr(valid[key]) == repr(value)
-        }
-        properties = schema.get("properties", {})
-        schema = {
-            **schema,
-            "properties": {**properties, **{key: True for key in same & set(properties)}},
-        }
-        _check_keys({k: v for k, v in raw.items() if k not in same}, source, error, root)
-    else:
-        _check_keys(raw, source, error, root)
+    # Over MAX_NODES values in all, the whole walk below refuses the document, as it would.
+    if valid is not None and top and _size_beside(raw, valid) <= MAX_NODES:
+        raw, schema, done = _prune(raw, valid, schema)
+        if done:  # what differs from valid passes: no key left to check
+            return
+    _check_keys(raw, source, error, root)
     errors = sorted(
         _Validator(schema).iter_errors(raw),
         key=lambda e: (len(e.absolute_path), [str(p) for p in e.absolute_path]),
@@ -357,9 +350,99 @@ def check_schema(
     raise error(source, key_path(path), _describe(found))
 
 
-#: Schema keywords at the top level under which ``check_schema(valid=...)`` may skip unchanged
+#: Schema keywords of a mapping under which ``check_schema(valid=...)`` may skip unchanged
 #: values: each checks a value alone, or the keys, never one value against another.
 _TOP_LEVEL = {"type", "additionalProperties", "required", "properties", "description"}
+
+
+def _prune(raw: Any, valid: Any, schema: Any) -> tuple[Any, Any, bool]:
+    """What of ``raw`` is left to check against ``schema``: (value, schema, whether it passes).
+
+    Where the schema checks a mapping key by key (:data:`_TOP_LEVEL`), a value the same as
+    ``valid``'s there (which passed that sub-schema) is dropped, its key no longer missing; so
+    is a plain value that passes its plain sub-schema (:func:`_passes_alone`), and a mapping
+    with nothing left to check; a mapping that differs is pruned in turn. Key paths, the
+    sub-schemas met, and so the errors and their order are those of the whole check.
+    """
+    if _passes_alone(raw, schema):
+        return raw, schema, True
+    if not (
+        isinstance(raw, Mapping)
+        and isinstance(schema, Mapping)
+        and set(schema) <= _TOP_LEVEL
+        and schema.get("type", "object") == "object"
+    ):
+        return raw, schema, False
+    known = valid if isinstance(valid, Mapping) else {}
+    properties, extra = schema.get("properties", {}), schema.get("additionalProperties")
+    kept, inner = {}, {}
+    for key, value in raw.items():
+        if key in known and _same(value, known[key]):
+            continue
+        if key in properties:
+            value, inner[key], done = _prune(value, known.get(key), properties[key])
+        else:  # checked whole unless it passes whole
+            done = isinstance(key, str) and _prune(value, known.get(key), extra)[2]
+        if not done:
+            kept[key] = value
+    pruned = {**schema, "properties": {**properties, **inner}} if inner else dict(schema)
+    if "required" in schema:
+        pruned["required"] = [key for key in schema["required"] if key not in raw]
+    return kept, pruned, not kept and not pruned.get("required")
+
+
+#: Keywords of a plain value's schema that :func:`_passes_alone` decides.
+_PLAIN = {"type", "minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "description"}
+
+
+def _passes_alone(value: Any, schema: Any) -> bool:
+    """Whether ``value`` surely passes a plain schema: a string, or a number within bounds.
+
+    False when unsure (another keyword, another type, a value that fails): the validator
+    then decides, and words the error.
+    """
+    if not isinstance(schema, Mapping) or not set(schema) <= _PLAIN:
+        return False
+    kind = schema.get("type")
+    if kind == "string":
+        return isinstance(value, str)  # bounds apply to numbers only
+    if not (kind == "number" and _is_number(None, value)) and not (
+        kind == "integer" and _is_integer(None, value)
+    ):
+        return False
+    low, high = schema.get("minimum", -math.inf), schema.get("maximum", math.inf)
+    above = schema.get("exclusiveMinimum", -math.inf)
+    below = schema.get("exclusiveMaximum", math.inf)
+    return bool(low <= value <= high and above < value < below)
+
+
+def _same(value: Any, known: Any) -> bool:
+    """Whether a value is the known one: the same object, or the same repr.
+
+    repr, not ==: 0 == False and 1 == 1.0, but the schema tells them apart.
+    """
+    return value is known or repr(value) == repr(known)
+
+
+def _size_beside(raw: Mapping[str, Any], valid: Mapping[str, Any]) -> int:
+    """:func:`_size` of ``raw``; the values it shares with ``valid`` (same objects) from a memo."""
+    sizes = _VALID_SIZES.get(id(valid))
+    if sizes is None or sizes[0] is not valid:
+        if len(_VALID_SIZES) >= 16:
+            _VALID_SIZES.clear()
+        counts = {key: _size(value) for key, value in valid.items() if isinstance(key, str)}
+        sizes = _VALID_SIZES[id(valid)] = (valid, counts)
+    return 1 + sum(
+        sizes[1][key] if key in valid and value is valid[key] else _size(value)
+        for key, value in raw.items()
+        if isinstance(key, str)
+    )
+
+
+#: Value counts of the top-level values of documents known to pass (``check_schema``'s
+#: ``valid``), by the document's id (the document is kept, so that the id stays its own):
+#: a study's cases are checked against one base.
+_VALID_SIZES: dict[int, tuple[Mapping[str, Any], dict[str, int]]] = {}
 
 
 def key_path(parts: Sequence[Any]) -> str:

@@ -239,7 +239,7 @@ def build_scenario(
     if not isinstance(raw, Mapping):
         raise ScenarioError(source, "", "a scenario must be a mapping of keys to values")
     _check_schema(raw, source, valid)
-    raw = merge_includes(raw, source, base_dir)
+    raw = _merge(raw, source, base_dir)  # the keys it reads were checked just above
     duration = float(raw["duration"])
 
     drives = _drives(raw.get("drives", {}), source)
@@ -430,6 +430,16 @@ def merge_includes(raw: Mapping[str, Any], source: str, base_dir: Path | None) -
     """
     # the keys merged must have their form first (the rest of raw is checked when it is built)
     check_schema({k: raw[k] for k in _MERGED if k in raw}, _MERGED_SCHEMA, source, ScenarioError)
+    return _merge(raw, source, base_dir)
+
+
+def _merge(raw: Mapping[str, Any], source: str, base_dir: Path | None) -> Mapping[str, Any]:
+    """:func:`merge_includes` of a scenario whose merged keys (``_MERGED``) passed the schema.
+
+    A study case of a merged base (no ``include``) reads no fragment; the robot data file is
+    read and checked once per process (:func:`vtm_pin.physics.robot.robot_data` keeps it, by
+    modification time and size), so the merge costs a look-up.
+    """
     return _merge_robot_brakes(_merge_fragments(raw, source, base_dir), source, base_dir)
 
 

@@ -565,8 +565,12 @@ def resolve_case(base: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str
 
     Named axes are set as :data:`NAMED_AXES` says; a key path sets that key, creating the
     mappings on its way; ``*`` in a path stands for every key of the mapping there.
+
+    The case is a variant of the base (with :data:`FAST_CASES`): only the top-level values its
+    axes set are copied, the others are the base's own objects (read only: nothing modifies a
+    case's scenario), so that the schema check of a case skips them at once.
     """
-    raw = copy.deepcopy(dict(base))
+    raw = _variant(base, [_touches(name) for name in values])
     for name, value in values.items():
         if name in NAMED_AXES:
             NAMED_AXES[name][0](raw, value)
@@ -579,10 +583,33 @@ def case_scenario(base: Mapping[str, Any], case: Case) -> dict[str, Any]:
     """The scenario (parsed YAML) of ``case``: its settings if it has any, else its values."""
     if not case.settings:
         return resolve_case(base, case.values)
-    raw = copy.deepcopy(dict(base))
+    raw = _variant(base, [(path.split(".")[0],) for path in case.settings])
     for path, value in case.settings.items():
         _set_path(raw, path.split("."), value)
     return raw
+
+
+#: Build each case as a variant of its validated base (:func:`resolve_case` copies only the
+#: top-level values it sets; :mod:`vtm_pin.study.runner` checks only those against the schema).
+#: False: every case is a deep copy, built and checked whole as a fresh scenario (for tests).
+FAST_CASES = True
+
+#: Top-level scenario keys a named axis modifies besides those of its key paths (the brake
+#: axes state what they did in ``assumptions``).
+_ALSO_TOUCHES = {"brake_scale": ("assumptions",), "failed_brake": ("assumptions",)}
+
+
+def _touches(name: str) -> tuple[str, ...]:
+    """The top-level scenario keys an axis modifies (``*``: any of them)."""
+    return tuple(path.split(".")[0] for path in _writes(name)) + _ALSO_TOUCHES.get(name, ())
+
+
+def _variant(base: Mapping[str, Any], touched: Sequence[tuple[str, ...]]) -> dict[str, Any]:
+    """A copy of ``base`` to set values in: its ``touched`` top-level values copied, deeply."""
+    keys = {key for keys in touched for key in keys}
+    if not FAST_CASES or "*" in keys:
+        return copy.deepcopy(dict(base))
+    return {key: copy.deepcopy(value) if key in keys else value for key, value in base.items()}
 
 
 def _set_path(node: dict[str, Any], parts: Sequence[str], value: Any) -> None:

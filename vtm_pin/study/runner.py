@@ -146,7 +146,7 @@ def run_cases(
     """
     from ..outputs.figures import bound_variants
     from ..scene.scenario import build_scenario
-    from .cases import case_scenario
+    from . import cases
 
     keep = functools.partial(_keep, None if store is None else Path(store))
     records: list[dict[str, Any]] = []
@@ -162,7 +162,7 @@ def run_cases(
         records.append(record)
         start = time.perf_counter()
         try:
-            raw = case_scenario(task.base, case)
+            raw = cases.case_scenario(task.base, case)
             source = f"{task.source} (case {case.id})"
             scenario = build_scenario(
                 raw,
@@ -170,7 +170,7 @@ def run_cases(
                 base_dir=Path(task.base_dir),
                 name=task.name,
                 loader=_ROBOTS,
-                valid=_valid_base(task.base),
+                valid=_valid_base(task.base) if cases.FAST_CASES else None,
             )
             extra = bound_variants(scenario, _ROBOTS) if scenario.bounds is not None else []
             built.append((record, scenario, extra))
@@ -263,6 +263,9 @@ def _valid_base(base: Mapping[str, Any]) -> Mapping[str, Any] | None:
     """``base`` if it passes the scenario schema (its cases are then checked against it)."""
     from ..scene.scenario import passes_schema
 
+    known = _LAST_BASE.get("base")
+    if known is not None and known[0] is base:  # the cases of a task list share their base
+        return base if known[1] else None
     key = repr(base)  # exact for parsed YAML: equal reprs, equal documents
     ok = _BASES.get(key)
     if ok is None:
@@ -270,7 +273,12 @@ def _valid_base(base: Mapping[str, Any]) -> Mapping[str, Any] | None:
         if len(_BASES) >= 16:
             _BASES.clear()
         _BASES[key] = ok
+    _LAST_BASE["base"] = (base, ok)
     return base if ok else None
+
+
+#: The last base :func:`_valid_base` checked (the object itself) and whether it passed.
+_LAST_BASE: dict[str, tuple[Mapping[str, Any], bool]] = {}
 
 
 def _record_result(
