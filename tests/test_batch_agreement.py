@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 from hypothesis import given, settings
@@ -106,3 +107,76 @@ def test_drawn_cases_agree_figure_by_figure(values: list[dict[str, Any]]) -> Non
     scalar = run_cases(tasks, engine="scalar")
     for one, other in zip(scalar, batched, strict=True):
         _assert_same_records(one, other)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.floats(1e-4, 0.05), st.floats(0.01, 0.99), st.floats(0.1, 100.0)),
+        min_size=1,
+        max_size=8,
+    ),
+    st.sampled_from([-1, 1]),
+    st.floats(-0.5, 0.5),
+)
+def test_rests_are_located_after_the_crossing_within_the_tolerance(
+    pairs: list[tuple[float, float, float]], direction: int, curve: float
+) -> None:
+    """The batched location's root: past the crossing, by less than event_tol (1e-14 s).
+
+    The rates are g(tau) = s (tau - r) (1 + c tau / h) with a root at r h, falling through 0
+    (direction -1) or rising (+1): nearly linear, as a rate over one step is.
+    """
+    tol = 1e-14
+    h = np.array([p[0] for p in pairs])
+    root = np.array([p[1] for p in pairs]) * h
+    slope = direction * np.array([p[2] for p in pairs])
+    signs = np.full(len(pairs), float(direction))
+
+    def g(tau: np.ndarray, some: Any = slice(None)) -> np.ndarray:
+        return slope[some] * (tau - root[some]) * (1.0 + curve * tau / h[some])
+
+    found, crossed = batch._roots(g, g(np.zeros_like(h)), h, signs, tol)
+    assert crossed.all()
+    assert np.all(direction * g(found) >= 0.0)  # on the far side (or at the root)
+    assert np.all(found - root <= tol + 4 * np.spacing(h))  # less than event_tol past it
+    assert np.all(found >= root - 4 * np.spacing(h))
+
+
+def test_rests_located_across_lanes_agree_with_the_phases_own_location(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Every rest of 32 UR10 cases is located across the lanes, not by the phase's events,
+    and each brake event is where the phase's own location puts it: within 1e-13 s (both
+    locate to event_tol, 1e-14 s, each from its side), the final states within 1e-10."""
+    base = _base()
+    scenarios = [
+        build_scenario(
+            resolve_case(base, {"joint": JOINTS[i % 3], "speed": 0.3 + 0.02 * i}),
+            source="rests",
+            base_dir=SCENARIOS_DIR,
+        )
+        for i in range(32)
+    ]
+    problems = [s.problem for s in scenarios]
+    own_calls: list[int] = []
+    locate = batch.BatchEngine._locate
+
+    def counted(self: Any, *args: Any) -> Any:
+        own_calls.append(1)
+        return locate(self, *args)
+
+    monkeypatch.setattr(batch.BatchEngine, "_locate", counted)
+    across = batch.simulate_many(problems, scenarios[0].integrator)
+    assert not own_calls
+    monkeypatch.setattr(batch.BatchEngine, "_locate_rests", lambda self, *args: {})
+    own = batch.simulate_many(problems, scenarios[0].integrator)
+    assert len(own_calls) == sum(len(r.events) for r in own) > 0
+    for one, other in zip(own, across, strict=True):
+        assert [(e.joint, e.kind) for e in one.brake_events] == [
+            (e.joint, e.kind) for e in other.brake_events
+        ]
+        times = [e.t for e in one.brake_events], [e.t for e in other.brake_events]
+        assert np.max(np.abs(np.subtract(*times))) <= 1e-13
+        assert np.max(np.abs(one.q[-1] - other.q[-1])) <= 1e-10
+        assert np.max(np.abs(one.v[-1] - other.v[-1])) <= 1e-10

@@ -759,7 +759,7 @@ class BatchEngine:
         Returns:
             Per index into ``sub``: (offset [s] from the step's start, event index).
         """
-        begin = time.perf_counter()
+        begin, dynamics = time.perf_counter(), self.seconds["dynamics"]
         n, tol = self.n, self.integrator.event_tol
         kind = lanes.event_kind[sub]
         g0 = lanes.y[sub, n : 2 * n]
@@ -772,27 +772,22 @@ class BatchEngine:
         start = g0[lane, joint]
         coef = F[lane, :, n + joint]  # (pairs, 7): the rates' continuous extensions
 
-        def rate(tau: np.ndarray) -> np.ndarray:
-            return start + np.einsum("pj,pj->p", dp.dense_weights(tau / h[lane]), coef)
+        def rate(tau: np.ndarray, some: slice | np.ndarray = slice(None)) -> np.ndarray:
+            x = tau / h[lane][some]
+            return start[some] + np.einsum("pj,pj->p", dp.dense_weights(x), coef[some])
 
-        lo, hi = np.zeros(lane.size), h[lane].copy()
-        ok = _crossed(start, rate(hi), direction)
-        while np.any(hi - lo > tol):
-            mid = 0.5 * (lo + hi)
-            past = _crossed(start, rate(mid), direction)
-            hi, lo = np.where(past, mid, hi), np.where(past, lo, mid)
+        hi, ok = _roots(rate, start, h[lane], direction, tol)
         found: dict[int, tuple[float, int]] = {}
         for p in np.flatnonzero(ok):
-            i, candidate = (
-                int(lane[p]),
-                (float(hi[p]), int(lanes.event_index[sub[lane[p]], joint[p]])),
-            )
+            i = int(lane[p])
+            candidate = (float(hi[p]), int(lanes.event_index[sub[i], joint[p]]))
             found[i] = min(found.get(i, candidate), candidate)
-        for i in np.flatnonzero(simple):  # every fired rate must have its root
-            if (fired[i] & ~np.isin(np.arange(n), joint[(lane == i) & ok])).any():
-                found.pop(int(i), None)
+        for k in np.flatnonzero(simple):  # every fired rate must have its root
+            if (fired[k] & ~np.isin(np.arange(n), joint[(lane == k) & ok])).any():
+                found.pop(int(k), None)
         self._drop_earlier(lanes, sub, F, h, found)
-        self.seconds["location"] += time.perf_counter() - begin
+        inner = self.seconds["dynamics"] - dynamics  # the slip margins' right-hand sides
+        self.seconds["location"] += time.perf_counter() - begin - inner
         return found
 
     def _drop_earlier(
@@ -901,10 +896,50 @@ class _Step:
         return _Step(self.h[mask], self.last[mask], self.err[mask], self.K[mask], self.y_new[mask])
 
 
+#: Secant steps of the batched location of rests before its check (then bisection where needed).
+_SECANT_STEPS = 6
 #: A stuck joint's slip margin counts as clear of zero at a located rest, for the batched
 #: location, above this fraction of the largest holding torque (at least 1 N m): the phase's own
 #: margin, which the scalar location uses, differs from the batched one by round-off only.
 _MARGIN_GUARD = 1e-6
+
+
+def _roots(
+    g: Callable[..., np.ndarray],
+    g0: np.ndarray,
+    h: np.ndarray,
+    direction: np.ndarray,
+    tol: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where each of many functions g, at g0 at 0, crosses zero in (0, h] (to ``tol``).
+
+    ``g(tau)`` evaluates all of them, ``g(tau, some)`` those indexed by ``some``.
+
+    Secant steps from the ends (the rates are nearly linear over a step), then a check that
+    the crossing lies between tau - tol / 2 and tau + tol / 2; where it does not, bisection.
+    Either way the root returned is on the side after the crossing, less than ``tol`` past it.
+
+    Returns:
+        The roots [s], and whether each function has crossed by h at all (no root if not).
+    """
+    end = g(h)
+    ok = _crossed(g0, end, direction)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b, ga, gb = np.zeros_like(h), h.copy(), g0, end
+        for _ in range(_SECANT_STEPS):
+            c = b - gb * (b - a) / (gb - ga)
+            c = np.clip(np.where(np.isfinite(c), c, b), 0.0, h)  # converged: 0 / 0
+            a, ga, b, gb = b, gb, c, g(c)
+    lo, hi = np.clip(b - 0.5 * tol, 0.0, h), np.clip(b + 0.5 * tol, 0.0, h)
+    good = _crossed(g0, g(hi), direction) & ~_crossed(g0, g(lo), direction)
+    left = np.flatnonzero(ok & ~good)
+    if left.size:
+        lo[left], hi[left] = 0.0, h[left]
+        while np.any(hi[left] - lo[left] > tol):
+            mid = 0.5 * (lo[left] + hi[left])
+            past = _crossed(g0[left], g(mid, left), direction[left])
+            hi[left], lo[left] = np.where(past, mid, hi[left]), np.where(past, lo[left], mid)
+    return hi, ok
 
 
 def _ramp_factor(lanes: _Lanes, rows: np.ndarray, t: np.ndarray) -> np.ndarray:
