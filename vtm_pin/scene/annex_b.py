@@ -515,6 +515,7 @@ class _Evaluator:
         self.q = q_base.copy()
         self.J6 = np.zeros((6, model.nv))
         self.J = self.J6[:3]
+        self.Jf6 = self.J6[:, chain.free]
         pin.forwardKinematics(model, self.data, self.q)
         joint = chain.plane_joint
         origin = (self.data.oMi[model.parents[joint]] * model.jointPlacements[joint]).translation
@@ -523,7 +524,7 @@ class _Evaluator:
         self._key: bytes | None = None
         self.r = self.h = 0.0
         self.dr = self.dh = np.zeros(len(chain.free))
-        self._lower = np.tril_indices(len(chain.free), -1)
+        self._lower = _lower_triangle(len(chain.free))
         self.at(self.q[chain.free])
 
     def at(self, x: np.ndarray) -> _Evaluator:
@@ -535,7 +536,8 @@ class _Evaluator:
         self.q[chain.free] = x
         self.J6 = pin.computeFrameJacobian(self.model, self.data, self.q, chain.frame, _LWA)
         self.J = self.J6[:3]
-        Jf = self.J[:, chain.free]
+        self.Jf6 = self.J6[:, chain.free]
+        Jf = self.Jf6[:3]
         d = self.data.oMf[chain.frame].translation - chain.point
         along = float(chain.axis @ d)
         radial = d - along * chain.axis
@@ -550,29 +552,32 @@ class _Evaluator:
         """r(q) at the last point [m]."""
         return self.r
 
-    def hessians(self) -> tuple[np.ndarray, np.ndarray]:
-        """Second derivatives of r and of h over the free joints at the last point, (n, n).
+    def lagrangian_hessian(self, lam: np.ndarray) -> np.ndarray:
+        """I + lam[0] d2r + lam[1] d2h over the free joints at the last point, (n, n).
 
-        Closed form from the frame Jacobian's columns (no other kinematics): the free joints
-        are a chain in velocity order (all carry the tool frame), so with w_k the angular and
-        v_k the linear column of joint k (w_k = 0 for a prismatic joint), the tool origin p has
-        d2p/dq_i dq_j = w_min(i,j) x v_max(i,j): turning an inner joint turns the outer one's
-        column with it; moving an outer joint moves p about the inner axis. With u the unit
-        radial direction and P the projection off the joint-1 axis a:
-        d2h = a . d2p and d2r = u . d2p + ((P V)^T (P V) - dr dr^T) / r.
+        The Hessian of |x - g|^2 / 2 + lam . (r - target, h), in closed form from the frame
+        Jacobian's columns (no other kinematics): the free joints are a chain in velocity order
+        (all carry the tool frame), so with w_k the angular and v_k the linear column of joint
+        k (w_k = 0 for a prismatic joint), the tool origin p has d2p/dq_i dq_j =
+        w_min(i,j) x v_max(i,j): turning an inner joint turns the outer one's column with it;
+        moving an outer joint moves p about the inner axis. With a the joint-1 axis, u the unit
+        radial direction and P = I - a a^T: d2h = a . d2p and
+        d2r = u . d2p + ((P V)^T (P V) - dr dr^T) / r; the two projections of d2p are one,
+        along lam[0] u + lam[1] a.
         """
-        free = self.chain.free
-        V, W = self.J6[:3, free], self.J6[3:, free]
+        V, W = self.Jf6[:3], self.Jf6[3:]
         axis = self.chain.axis
-        Hh = _projected_hessian(axis, V, W, self._lower)
-        if self.r <= 0.0:
-            return np.zeros_like(Hh), Hh
-        d = self.data.oMf[self.chain.frame].translation - self.chain.point
-        u = (d - float(axis @ d) * axis) / self.r
-        PV = V - np.outer(axis, axis @ V)
-        curvature = (PV.T @ PV - np.outer(self.dr, self.dr)) / self.r
-        Hr = _projected_hessian(u, V, W, self._lower) + curvature
-        return Hr, Hh
+        k = lam[1] * axis
+        H = np.eye(V.shape[1])
+        if self.r > 0.0:
+            d = self.data.oMf[self.chain.frame].translation - self.chain.point
+            k = k + lam[0] * (d - float(axis @ d) * axis) / self.r
+            PV = V - np.outer(axis, axis @ V)
+            H += (lam[0] / self.r) * (PV.T @ PV - np.outer(self.dr, self.dr))
+        kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        M = (kx @ W).T @ V  # (i, j), i <= j: k . (w_i x v_j) = (k x w_i) . v_j
+        M[self._lower] = M.T[self._lower]
+        return H + M
 
     def column(self, i: int) -> np.ndarray:
         """Column ``i`` of the tool's world-aligned linear Jacobian at the last point, (3,)."""
@@ -596,18 +601,12 @@ class _Evaluator:
         return max(abs(self.h), 0.0 if target is None else abs(self.r - target))
 
 
-def _projected_hessian(
-    k: np.ndarray, V: np.ndarray, W: np.ndarray, lower: tuple[np.ndarray, np.ndarray]
-) -> np.ndarray:
-    """K . d2p over a chain's joints, (n, n) (see :meth:`_Evaluator.hessians`).
-
-    Entry (i, j), i <= j, is k . (w_i x v_j) = (k x w_i) . v_j; the lower triangle (indices
-    ``lower``) mirrors it.
-    """
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    M = (kx @ W).T @ V
-    M[lower] = M.T[lower]
-    return M
+def _lower_triangle(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices below the diagonal of an (n, n) matrix (cached: NumPy builds them slowly)."""
+    hit = _LOWER.get(n)
+    if hit is None:
+        hit = _LOWER[n] = np.tril_indices(n, -1)
+    return hit
 
 
 _Bounds = tuple[np.ndarray, np.ndarray]
@@ -750,6 +749,10 @@ def _solve_extension(model: pin.Model, chain: _Chain, e: float, guess: np.ndarra
     ev = _Evaluator(model, chain, guess)
     bounds = _bounds(model, chain)
     g = guess[chain.free]
+    if e < 1.0:
+        x = _newton(ev, g, target, bounds)
+        if x is not None:
+            return _pose(guess, chain, x)
     nearest_max = min(reach.poses, key=lambda x: float(np.linalg.norm(x - g)))
 
     def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -766,9 +769,6 @@ def _solve_extension(model: pin.Model, chain: _Chain, e: float, guess: np.ndarra
         )
         return _pose(guess, chain, _nearest(ev, [nearest_max, moved], g, target, e, reach.R))
 
-    x = _newton(ev, g, target, bounds)
-    if x is not None:
-        return _pose(guess, chain, x)
     reach_row = {"type": "eq", "fun": lambda x: ev.at(x).r - target, "jac": lambda x: ev.at(x).dr}
     cons = [reach_row, plane]
     candidates = [
@@ -794,7 +794,7 @@ def _newton(ev: _Evaluator, g: np.ndarray, target: float, bounds: _Bounds) -> np
 
     Minimizes |x - g|^2 / 2 subject to c(x) = (r - target, h) = 0 by Newton's method on the
     KKT system (x - g) + J_c^T lambda = 0, c(x) = 0, J_c = (dr; dh), with the Lagrangian's
-    Hessian I + lambda_r d2r + lambda_h d2h (:meth:`_Evaluator.hessians`, exact: the
+    Hessian I + lambda_r d2r + lambda_h d2h (:meth:`_Evaluator.lagrangian_hessian`, exact: the
     convergence is quadratic), from the guess with lambda = 0 (the first step is the
     minimum-norm step onto the linearized constraints, as SLSQP's). A step that moves a joint by
     more than :data:`NEWTON_MAX_STEP` is shortened, then halved until the KKT residual's norm
@@ -826,9 +826,7 @@ def _newton(ev: _Evaluator, g: np.ndarray, target: float, bounds: _Bounds) -> np
     for _ in range(NEWTON_MAXITER):
         if max(abs(F[n]), abs(F[n + 1])) <= NEWTON_CTOL and np.max(np.abs(F[:n])) <= KKT_TOL:
             return x if _regular_minimum(ev, x, lam) else None
-        Hr, Hh = ev.hessians()
-        K[:n, :n] = lam[0] * Hr + lam[1] * Hh
-        K[:n, :n][np.diag_indices(n)] += 1.0
+        K[:n, :n] = ev.lagrangian_hessian(lam)
         K[:n, n:] = K[n:, :n].T
         try:
             step = np.linalg.solve(K, -F)
@@ -862,8 +860,7 @@ def _regular_minimum(ev: _Evaluator, x: np.ndarray, lam: np.ndarray) -> bool:
     if sv[-1] <= NEWTON_REGULAR * sv[0]:
         return False
     Z = Vt[len(sv) :].T  # a basis of the constraints' tangent space
-    Hr, Hh = ev.hessians()
-    H = np.eye(len(x)) + lam[0] * Hr + lam[1] * Hh
+    H = ev.lagrangian_hessian(lam)
     return Z.shape[1] == 0 or float(np.linalg.eigvalsh(Z.T @ H @ Z)[0]) > NEWTON_REGULAR
 
 
@@ -953,3 +950,4 @@ _POLISHED = 1.0e-14
 _CHAIN_CACHE: OrderedDict[tuple[Any, ...], _Chain] = OrderedDict()
 _REACH_CACHE: OrderedDict[tuple[Any, ...], _Reach] = OrderedDict()
 _POSE_CACHE: OrderedDict[tuple[Any, ...], np.ndarray] = OrderedDict()
+_LOWER: dict[int, tuple[np.ndarray, np.ndarray]] = {}
