@@ -729,8 +729,12 @@ def _solve_extension(model: pin.Model, chain: _Chain, e: float, guess: np.ndarra
 
     For e < 1, Newton's method on the KKT system of the problem (:func:`_newton`) first,
     from the guess: its pose is taken when it converges to a regular local minimum along a
-    path within the position limits (the case of the UR arms' studies; ~10x cheaper than
-    SLSQP). Otherwise SLSQP minimizes the distance to the guess, from the guess and from the
+    path within the position limits (every case of the shipped UR studies; a few times
+    cheaper than SLSQP). Like SLSQP it finds a local minimum: where several lie about a guess
+    far from every pose at r = e R (e.g. a guess near a stretched arm), it may end in another
+    one than the SLSQP path below would take (nearer or farther). Newton does not start from
+    the maximizer of r: there dr and dh are parallel and its KKT matrix is singular.
+    Otherwise SLSQP minimizes the distance to the guess, from the guess and from the
     maximizer of r found nearest to it (a pose at r = R in the plane: a warm start for large
     e); if neither meets the constraints (near the smallest reach of a folded arm), bounded
     least squares finds a pose that does from the starts of the maximum-reach search in
