@@ -1024,7 +1024,8 @@ def run_many(
             can keep its finished runs if it is interrupted. A batched run's result then has
             as its ``wall_time`` the batch's time since the batch's previous run ended (these
             add up to the batch's time); the outcome returned at the end has equal shares of
-            it. An error it raises ends the call.
+            it. The time spent in ``on_done`` itself is not the batch's. An error it raises
+            ends the call.
         min_lanes: Fewest runs a batch is given (a study's runner uses :data:`MIN_LANES`).
 
     Raises:

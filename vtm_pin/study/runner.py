@@ -130,7 +130,8 @@ def run_cases(
     :data:`METRICS` and per joint (None where undefined), the scenario's assumptions, the
     engine that ran it (and why not the batched one, if it was asked for), and the timing
     split: ``build`` (scenario and model), ``simulate`` (with the batched engine, the case's
-    share of its batch: the batch's time since its previous case ended), ``report`` [s].
+    share of its batch: the batch's time since its previous case ended, the reports of the
+    cases that ended meanwhile left out), ``report`` [s].
 
     Args:
         tasks: The cases.
