@@ -100,7 +100,9 @@ class ArmPoints:
         rows = np.repeat(np.arange(len(used)), counts)
         for array in (used, starts, centers, radii, rows):
             array.flags.writeable = False
-        return _Groups(used, starts, starts + counts, centers, radii, rows)
+        consecutive = len(used) and np.all(np.diff(used) == 1)
+        carry = slice(int(used[0]), int(used[-1]) + 1) if consecutive else used
+        return _Groups(used, starts, starts + counts, centers, radii, rows, carry)
 
 
 @dataclass(frozen=True)
@@ -114,6 +116,7 @@ class _Groups:
         centers: The centre of each joint's points' bounding box, in its frame [m], (m, 3).
         radii: The largest distance of a joint's points from its centre [m], shape (m,).
         rows: Each point's group, shape (k,).
+        carry: ``joints`` as an index of the joints' axis (a slice where consecutive).
     """
 
     joints: np.ndarray
@@ -122,6 +125,7 @@ class _Groups:
     centers: np.ndarray
     radii: np.ndarray
     rows: np.ndarray
+    carry: slice | np.ndarray
 
 
 @dataclass(frozen=True)
@@ -396,8 +400,9 @@ def max_displacement(
     qs = np.atleast_2d(np.asarray(q_traj, dtype=float))
     R, p = joint_placements(robot, qs) if placements is None else placements
     groups = points.groups
-    turn = R[:, groups.joints] - R[:1, groups.joints]  # (T, m, 3, 3)
-    shift = p[:, groups.joints] - p[:1, groups.joints]  # (T, m, 3)
+    carry = groups.carry
+    turn = R[:, carry] - R[:1, carry]  # (T, m, 3, 3)
+    shift = p[:, carry] - p[:1, carry]  # (T, m, 3)
     middle = np.einsum("tgab,gb->tga", turn, groups.centers) + shift
     bound = np.sqrt(np.einsum("tga,tga->tg", middle, middle))
     bound += np.sqrt(np.einsum("tgab,tgab->tg", turn, turn)) * groups.radii
