@@ -44,7 +44,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..files.model_cache import ModelCache
-from .kinematics import cross, joint_placements, kinematics_key, pinocchio_data
+from .kinematics import joint_placements, kinematics_key, pinocchio_data
 from .robot import Robot
 
 #: ``ArmPoints.source`` for points on the links' collision geometry.
@@ -102,7 +102,9 @@ class ArmPoints:
             array.flags.writeable = False
         consecutive = len(used) and np.all(np.diff(used) == 1)
         carry = slice(int(used[0]), int(used[-1]) + 1) if consecutive else used
-        return _Groups(used, starts, starts + counts, centers, radii, rows, carry)
+        columns = np.ascontiguousarray(self.points.T)
+        columns.flags.writeable = False
+        return _Groups(used, starts, starts + counts, centers, radii, rows, carry, columns)
 
 
 @dataclass(frozen=True)
@@ -117,6 +119,7 @@ class _Groups:
         radii: The largest distance of a joint's points from its centre [m], shape (m,).
         rows: Each point's group, shape (k,).
         carry: ``joints`` as an index of the joints' axis (a slice where consecutive).
+        columns: The points by columns (x, y, z rows) [m], shape (3, k).
     """
 
     joints: np.ndarray
@@ -126,6 +129,7 @@ class _Groups:
     radii: np.ndarray
     rows: np.ndarray
     carry: slice | np.ndarray
+    columns: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -464,9 +468,12 @@ def point_speeds(robot: Robot, points: ArmPoints, q: np.ndarray, v: np.ndarray) 
     data = pinocchio_data(robot)
     pin.forwardKinematics(model, data, np.asarray(q, dtype=float), np.asarray(v, dtype=float))
     groups = points.groups
-    rows = groups.rows
     motions = [data.v[int(joint)] for joint in groups.joints]
-    linear = np.array([m.linear for m in motions])
-    angular = np.array([m.angular for m in motions])
-    local = linear[rows] + cross(angular[rows], points.points)
-    return np.linalg.norm(local, axis=1)
+    linear = np.array([m.linear for m in motions]).T[:, groups.rows]  # (3, k): each point's
+    angular = np.array([m.angular for m in motions]).T[:, groups.rows]
+    (l0, l1, l2), (a0, a1, a2), (p0, p1, p2) = linear, angular, groups.columns
+    # v + omega x p (np.cross's products), and its length as np.linalg.norm(..., axis=1) adds
+    x0 = l0 + (a1 * p2 - a2 * p1)
+    x1 = l1 + (a2 * p0 - a0 * p2)
+    x2 = l2 + (a0 * p1 - a1 * p0)
+    return np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
