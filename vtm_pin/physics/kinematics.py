@@ -116,18 +116,23 @@ def _numpy_placements(chain: _Chain, qs: np.ndarray) -> tuple[np.ndarray, np.nda
     R = np.empty((njoints, count, 3, 3))  # joint-major: each joint's samples are contiguous
     p = np.empty((njoints, count, 3))
     R[0], p[0] = np.eye(3), 0.0
+    term = np.empty((count, 3, 3))
     for j in range(1, njoints):
         parent = chain.parents[j]
         rows = R[parent].reshape(-1, 3)  # the parent's rotations, stacked: (3 count, 3)
         fixed = (rows @ chain.rotations[j]).reshape(count, 3, 3)
-        p[j] = p[parent] + (rows @ chain.translations[j]).reshape(count, 3)
+        np.add(p[parent], (rows @ chain.translations[j]).reshape(count, 3), out=p[j])
         q = qs[:, chain.index[j]]
         axis = chain.axes[j]
         along = (fixed.reshape(-1, 3) @ axis).reshape(count, 3)  # the axis in the world
         if chain.revolute[j]:
             c, s = np.cos(q)[:, None, None], np.sin(q)[:, None, None]
             crossed = (fixed.reshape(-1, 3) @ chain.skews[j]).reshape(count, 3, 3)
-            R[j] = c * fixed + s * crossed + ((1.0 - c) * along[:, :, None]) * axis
+            # c fixed + s crossed + ((1 - c) along) axis, in place, in that order
+            np.multiply(c, fixed, out=R[j])
+            R[j] += np.multiply(s, crossed, out=term)
+            np.multiply((1.0 - c) * along[:, :, None], axis, out=term)
+            R[j] += term
         else:
             R[j] = fixed
             p[j] += along * q[:, None]
