@@ -278,3 +278,49 @@ def test_on_a_tie_the_first_sample_and_then_the_first_point_is_named():
     assert result.distance == pytest.approx(6.0, abs=EXACT)
     assert result.sample == 39 and result.link == "link3"
     assert result.index == int(np.flatnonzero(points.link == 2)[-1])  # its far end
+
+
+def brute_force_displacements(r, points, q):
+    """|p_i(q_t) - p_i(q_0)| of every point at every sample [m], shape (T, k), by Pinocchio."""
+    model, data = r.model, r.model.createData()
+    placed = []
+    for qt in q:
+        pin.forwardKinematics(model, data, qt)
+        world = np.empty_like(points.points)
+        for j in np.unique(points.joints):
+            mine = points.joints == j
+            world[mine] = points.points[mine] @ data.oMi[int(j)].rotation.T
+            world[mine] += data.oMi[int(j)].translation
+        placed.append(world)
+    placed = np.array(placed)
+    return np.linalg.norm(placed - placed[0], axis=2)
+
+
+@pytest.mark.parametrize("name", ["ur10", "panda"])
+def test_the_bounded_search_finds_the_largest_displacement_of_all_points_and_samples(name):
+    """max_displacement forms a joint's points only where a bound says they may hold the
+    largest displacement: on random walks of every size of step (some at rest after half the
+    run, one not moving at all) it finds what forming every point at every sample finds.
+    Tolerance: Pinocchio's placements against vtm_pin's NumPy ones, 1e-12 relative (1e-14 m
+    for a displacement near 0)."""
+    r = robot(name)
+    points = sample_arm_points(r, per_link=PER_LINK)
+    rng = np.random.default_rng(27)
+    for trial in range(9):
+        count = int(rng.integers(NUMPY_FROM, 160))
+        scale = [1e-6, 1e-3, 0.05][trial % 3]
+        q = rng.uniform(-2.0, 2.0, r.nv) + np.cumsum(rng.normal(0, scale, (count, r.nv)), axis=0)
+        if trial % 4 == 1:
+            q[count // 2 :] = q[count // 2]  # at rest: the largest is tied to the end
+        if trial == 8:
+            q[:] = q[0]
+        moved = brute_force_displacements(r, points, q)
+        result = max_displacement(r, points, q, swept=False)
+        assert result.distance == pytest.approx(moved.max(), rel=1e-12, abs=1e-14), trial
+        # the point and sample it names move that far
+        named = moved[result.sample, result.index]
+        assert named == pytest.approx(result.distance, rel=1e-12, abs=1e-14), trial
+        if trial % 4 == 1:
+            assert result.sample <= count // 2  # the first sample of the tie
+        if trial == 8:
+            assert (result.distance, result.index, result.sample) == (0.0, 0, 0)

@@ -41,8 +41,9 @@ import numpy as np
 import pinocchio as pin
 
 from ..core.results import SimulationResult
+from ..files.model_cache import ModelCache
 from ..physics.brakes import Brake, BrakeEventKind
-from ..physics.kinematics import compute_tool_jacobian
+from ..physics.kinematics import compute_tool_jacobian, kinematics_key, pinocchio_data
 from ..physics.payload import Payload
 from ..physics.robot import Robot
 from .stopping import StoppingReport
@@ -64,6 +65,9 @@ KINDS = (
 SLACK = 1e-9
 #: States of a stop at which the brakes' torques are checked against the gravity loads.
 LOAD_SAMPLES = 50
+
+#: :func:`arm_length` of the robots seen, by kinematics.
+_LENGTHS = ModelCache(16)
 
 
 @dataclass(frozen=True)
@@ -105,8 +109,12 @@ def gravity_loads(robot: Robot, q: np.ndarray) -> np.ndarray:
         q: Configurations [rad], shape (k, n).
     """
     model = robot.model
-    data = model.createData()
-    return np.abs([pin.computeGeneralizedGravity(model, data, row) for row in np.atleast_2d(q)])
+    data = pinocchio_data(robot)
+    rows = np.atleast_2d(q)
+    loads = np.empty((len(rows), model.nv))
+    for i, row in enumerate(rows):
+        loads[i] = pin.computeGeneralizedGravity(model, data, row)
+    return np.abs(loads)
 
 
 def kinetic_torques(robot: Robot, brakes: Sequence[Brake]) -> np.ndarray:
@@ -313,7 +321,15 @@ def payload_flags(robot: Robot, payload: Payload | None) -> list[Flag]:
 
 
 def arm_length(robot: Robot) -> float:
-    """Sum of the distances between consecutive joint origins and to the tool frame [m]."""
+    """Sum of the distances between consecutive joint origins and to the tool frame [m].
+
+    Kept per kinematics (a study's payload copies of one robot share it).
+    """
+    key = (robot.source, robot.tool_frame, kinematics_key(robot))
+    return _LENGTHS.get(key, lambda: _arm_length(robot))
+
+
+def _arm_length(robot: Robot) -> float:
     model = robot.model
     total = sum(float(np.linalg.norm(p.translation)) for p in list(model.jointPlacements)[1:])
     tool = model.frames[model.getFrameId(robot.tool_frame)] if robot.tool_frame else None

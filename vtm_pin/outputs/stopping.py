@@ -9,13 +9,18 @@ the motion before the brakes engage.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..core.results import RowKind, SimulationResult
 from ..physics.brakes import Brake, BrakeEventKind, BrakeMode
-from ..physics.kinematics import compute_tool_jacobian, compute_tool_motion
+from ..physics.kinematics import (
+    compute_tool_jacobian,
+    compute_tool_motion,
+    joint_placements,
+)
 from ..physics.robot import Robot
 from ..physics.stop import DEFAULT_REST_SPEED
 
@@ -77,6 +82,9 @@ class StoppingReport:
         tcp_path_length: Length of the swept path after the signal [m].
         tcp_peak_speed: Largest tool-frame speed after the signal [m/s].
         tcp_peak_surge: Largest jump of the tool-frame speed at a lock [m/s].
+        placements: The joints' world placements ``(R, p)`` at the samples from the signal on
+            (:func:`vtm_pin.physics.kinematics.joint_placements`), which
+            :func:`vtm_pin.outputs.figures.stop_figures` reuses; None if not at hand.
     """
 
     signal_time: float
@@ -90,6 +98,9 @@ class StoppingReport:
     tcp_path_length: float
     tcp_peak_speed: float
     tcp_peak_surge: float
+    placements: tuple[np.ndarray, np.ndarray] | None = field(
+        default=None, repr=False, compare=False
+    )
 
     @property
     def moving(self) -> tuple[str, ...]:
@@ -112,72 +123,34 @@ def compute_stopping_report(
         tool_frame: Frame to follow; the robot's tool frame by default.
     """
     t_signal = result.stop.t if result.stop is not None else 0.0
-    after = result.t >= t_signal
-    i0 = int(np.argmax(after))
-    n = robot.nv
-    locked_for_good = (
-        np.isin(result.modes[-1], (BrakeMode.STUCK, BrakeMode.LOCKED)) | ~result.free[-1]
-    )
-
-    latch_time = np.full(n, np.nan)
-    surge = np.zeros(n)
-    lock_impulse = np.zeros(n)
-    for event in result.events:
-        for name in event.lock:
-            j = robot.joint_index(name)
-            if locked_for_good[j]:
-                latch_time[j] = max(0.0, event.t - t_signal)  # locked before: at once
-        for label, impulse in zip(event.rows, -event.transition.Lambda, strict=True):
-            if label.kind is RowKind.JOINT:
-                lock_impulse[robot.joint_index(label.name)] += impulse
-        order = [robot.joint_index(name) for name in event.locked_before + event.lock]
-        free_after = [j for j in range(n) if j not in order]
-        if free_after:
-            gain = np.abs(event.v_plus[free_after]) - np.abs(event.v_minus[free_after])
-            surge[free_after] = np.maximum(surge[free_after], gain)
-
-    hold = result.holding
-    by_joint = {robot.joint_index(b.joint): b for b in brakes}
-    engaging = (BrakeEventKind.ENGAGE, BrakeEventKind.LOCK)
-    engaged = {e.joint: e.t for e in result.brake_events if e.kind in engaging}
-    peak_hold = np.full(n, np.nan)
-    margin = np.full(n, np.nan)
-    for j in range(n):
-        locked = ~result.free[:, j] & np.isfinite(hold[:, j])
-        if locked.any():
-            peak_hold[j] = float(np.max(np.abs(hold[locked, j])))
-        brake = by_joint.get(j)
-        stuck = (result.modes[:, j] == BrakeMode.STUCK) & np.isfinite(hold[:, j])
-        if brake is not None and brake.ideal:
-            margin[j] = np.inf
-        elif brake is not None and stuck.any():
-            t0 = engaged[robot.joints[j]]
-            ratio = float(robot.gear_ratio[j])
-            if brake.friction.ramp == 0.0:  # full normal force from engagement: one limit
-                limits = np.full(int(stuck.sum()), brake.static(0.0, ratio))
-            else:
-                limits = np.array([brake.static(t - t0, ratio) for t in result.t[stuck]])
-            margin[j] = float(np.min(limits - np.abs(hold[stuck, j])))
-
-    path, speed = compute_tool_motion(robot, result.q, result.v, tool_frame)
+    i0 = int(np.argmax(result.t >= t_signal))
+    latch_time, surge, lock_impulse = _event_figures(robot, result, t_signal)
+    peak_hold, margin = _holding_figures(robot, result, brakes)
+    q, v = result.q[i0:], result.v[i0:]
+    # The joints' placements from the signal on, once: the tool's path here, the arm's points
+    # in stop_figures (kept in the report).
+    placements = joint_placements(robot, q)
+    path, speed = compute_tool_motion(robot, q, v, tool_frame, placements)
     tcp_surge = 0.0
     events = result.events
     if events:
         jacobians = compute_tool_jacobian(robot, np.array([e.q for e in events]), tool_frame)
         for event, jac in zip(events, jacobians, strict=True):
-            jump = np.linalg.norm(jac @ event.v_plus) - np.linalg.norm(jac @ event.v_minus)
+            after, before = jac @ event.v_plus, jac @ event.v_minus
+            # |x| as np.linalg.norm takes it for a vector: sqrt(x . x)
+            jump = math.sqrt(after @ after) - math.sqrt(before @ before)
             tcp_surge = max(tcp_surge, float(jump))
     rest_speed = result.stop.rest_speed if result.stop is not None else DEFAULT_REST_SPEED
-    stop_time = [
-        _rest_time(result.t[i0:], result.v[i0:, j], rest_speed) - t_signal for j in range(n)
-    ]
+    stop_time = _rest_times(result.t[i0:], v, rest_speed) - t_signal
+    angle = result.q[-1] - result.q[i0]
+    motor = angle * robot.gear_ratio
     joints = tuple(
         JointStop(
             joint=name,
             stop_time=float(stop_time[j]),
             latch_time=float(latch_time[j]),
-            stop_angle=float(result.q[-1, j] - result.q[i0, j]),
-            stop_angle_motor=float((result.q[-1, j] - result.q[i0, j]) * robot.gear_ratio[j]),
+            stop_angle=float(angle[j]),
+            stop_angle_motor=float(motor[j]),
             peak_surge=float(surge[j]),
             friction_impulse=float(result.brake_impulse[j]),
             lock_impulse=float(lock_impulse[j]),
@@ -187,7 +160,6 @@ def compute_stopping_report(
         for j, name in enumerate(robot.joints)
     )
     all_stopped = float(np.max(stop_time)) if np.all(np.isfinite(stop_time)) else float("nan")
-    tcp = path[i0:]
     return StoppingReport(
         signal_time=t_signal,
         joints=joints,
@@ -195,29 +167,106 @@ def compute_stopping_report(
         end_time=float(result.t[-1]),
         all_stopped_time=all_stopped,
         tool_frame=tool_frame or robot.tool_frame,
-        tcp_path=tcp,
-        tcp_distance=float(np.linalg.norm(tcp[-1] - tcp[0])),
-        tcp_path_length=float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))),
-        tcp_peak_speed=float(np.max(speed[i0:])),
+        tcp_path=path,
+        tcp_distance=float(np.linalg.norm(path[-1] - path[0])),
+        tcp_path_length=float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))),
+        tcp_peak_speed=float(np.max(speed)),
         tcp_peak_surge=tcp_surge,
+        placements=placements,
     )
 
 
-def _rest_time(t: np.ndarray, v: np.ndarray, rest_speed: float) -> float:
-    """When |v| falls below ``rest_speed`` for good [s]; NaN if it is above at the end.
+def _event_figures(
+    robot: Robot, result: SimulationResult, t_signal: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per joint: latch time [s], peak surge [rad/s], lock impulse [N m s] (:class:`JointStop`)."""
+    n = robot.nv
+    last = result.modes[-1]
+    locked_for_good = (last == BrakeMode.STUCK) | (last == BrakeMode.LOCKED) | ~result.free[-1]
+    index = {name: j for j, name in enumerate(robot.joints)}
+    latch_time = np.full(n, np.nan)
+    lock_impulse = np.zeros(n)
+    events = result.events
+    if not events:
+        return latch_time, np.zeros(n), lock_impulse
+    held = np.zeros((len(events), n), dtype=bool)  # locked after each event
+    joints, impulses = [], []
+    for e, event in enumerate(events):
+        for name in event.lock:
+            j = index[name]
+            if locked_for_good[j]:
+                latch_time[j] = max(0.0, event.t - t_signal)  # locked before: at once
+        for name in event.locked_before + event.lock:
+            held[e, index[name]] = True
+        for label, impulse in zip(event.rows, -event.transition.Lambda, strict=True):
+            if label.kind is RowKind.JOINT:
+                joints.append(index[label.name])
+                impulses.append(impulse)
+    np.add.at(lock_impulse, joints, impulses)  # one after the other, in event order
+    v_plus = np.array([event.v_plus for event in events])
+    v_minus = np.array([event.v_minus for event in events])
+    gain = np.where(held, -np.inf, np.abs(v_plus) - np.abs(v_minus))  # of the joints left free
+    return latch_time, np.maximum(0.0, np.max(gain, axis=0)), lock_impulse
+
+
+def _holding_figures(
+    robot: Robot, result: SimulationResult, brakes: tuple[Brake, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per joint: peak holding torque and holding margin [N m] (see :class:`JointStop`)."""
+    n = robot.nv
+    hold = result.holding
+    known = np.isfinite(hold)
+    size = np.abs(hold)
+    locked = ~result.free & known
+    peak_hold = np.where(
+        locked.any(axis=0), np.max(np.where(locked, size, -np.inf), axis=0), np.nan
+    )
+    margin = np.full(n, np.nan)
+    stuck = (result.modes == BrakeMode.STUCK) & known
+    ever = stuck.any(axis=0)
+    engaging = (BrakeEventKind.ENGAGE, BrakeEventKind.LOCK)
+    columns, limits = [], []  # joints whose static limit is one number (no ramp)
+    for brake in brakes:
+        j = robot.joint_index(brake.joint)
+        ratio = float(robot.gear_ratio[j])
+        if brake.ideal:
+            margin[j] = np.inf
+        elif not ever[j]:
+            continue
+        elif brake.friction.ramp == 0.0:  # full normal force from engagement: one limit
+            columns.append(j)
+            limits.append(brake.static(0.0, ratio))
+        else:
+            times = [
+                e.t for e in result.brake_events if e.kind in engaging and e.joint == brake.joint
+            ]
+            t0 = times[-1]  # its last engagement
+            rows = stuck[:, j]
+            ramp = np.array([brake.static(t - t0, ratio) for t in result.t[rows]])
+            margin[j] = float(np.min(ramp - size[rows, j]))
+    if columns:
+        spare = np.where(stuck[:, columns], np.array(limits) - size[:, columns], np.inf)
+        margin[columns] = np.min(spare, axis=0)
+    return peak_hold, margin
+
+
+def _rest_times(t: np.ndarray, v: np.ndarray, rest_speed: float) -> np.ndarray:
+    """Per column of ``v``: when |v| falls below ``rest_speed`` for good [s] (NaN: not yet).
 
     Between the last sample above and the next one, |v| is interpolated linearly; at an
     event (two samples at one time) the speed drops at the event time.
     """
     speed = np.abs(v)
-    above = np.flatnonzero(speed > rest_speed)
-    if above.size == 0:
-        return float(t[0])
-    a = int(above[-1])
-    if a == speed.size - 1:
-        return float("nan")
+    above = speed > rest_speed
+    count = len(t)
+    last = count - 1 - np.argmax(above[::-1], axis=0)  # the last sample above, per column
+    out = np.where(above.any(axis=0), np.nan, t[0])
+    cols = np.flatnonzero(above.any(axis=0) & (last < count - 1))  # at rest by the end
+    a = last[cols]
     span = t[a + 1] - t[a]
-    if span <= 0.0:
-        return float(t[a])
-    fraction = (speed[a] - rest_speed) / (speed[a] - speed[a + 1])
-    return float(t[a] + fraction * span)
+    slope = speed[a, cols] - speed[a + 1, cols]
+    ends = span > 0.0
+    fraction = (speed[a, cols][ends] - rest_speed) / slope[ends]
+    out[cols] = t[a]
+    out[cols[ends]] = t[a][ends] + fraction * span[ends]
+    return out

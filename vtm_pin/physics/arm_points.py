@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +44,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..files.model_cache import ModelCache
-from .kinematics import joint_placements
+from .kinematics import joint_placements, kinematics_key, pinocchio_data
 from .robot import Robot
 
 #: ``ArmPoints.source`` for points on the links' collision geometry.
@@ -86,6 +87,50 @@ class ArmPoints:
     spacing: float
     per_link: int
 
+    @cached_property
+    def groups(self) -> _Groups:
+        """The points by joint (:class:`_Groups`), computed once."""
+        used, starts, counts = np.unique(self.joints, return_index=True, return_counts=True)
+        centers = np.empty((len(used), 3))
+        radii = np.empty(len(used))
+        for g, (start, count) in enumerate(zip(starts, counts, strict=True)):
+            mine = self.points[start : start + count]
+            centers[g] = (mine.min(axis=0) + mine.max(axis=0)) / 2.0
+            radii[g] = np.max(np.linalg.norm(mine - centers[g], axis=1))
+        rows = np.repeat(np.arange(len(used)), counts)
+        for array in (used, starts, centers, radii, rows):
+            array.flags.writeable = False
+        consecutive = len(used) and np.all(np.diff(used) == 1)
+        carry = slice(int(used[0]), int(used[-1]) + 1) if consecutive else used
+        columns = np.ascontiguousarray(self.points.T)
+        columns.flags.writeable = False
+        return _Groups(used, starts, starts + counts, centers, radii, rows, carry, columns)
+
+
+@dataclass(frozen=True)
+class _Groups:
+    """The points of an :class:`ArmPoints` by joint (they are ordered by joint).
+
+    Attributes:
+        joints: The joints that carry points, shape (m,).
+        starts: The first point of each, shape (m,).
+        stops: One past its last point, shape (m,).
+        centers: The centre of each joint's points' bounding box, in its frame [m], (m, 3).
+        radii: The largest distance of a joint's points from its centre [m], shape (m,).
+        rows: Each point's group, shape (k,).
+        carry: ``joints`` as an index of the joints' axis (a slice where consecutive).
+        columns: The points by columns (x, y, z rows) [m], shape (3, k).
+    """
+
+    joints: np.ndarray
+    starts: np.ndarray
+    stops: np.ndarray
+    centers: np.ndarray
+    radii: np.ndarray
+    rows: np.ndarray
+    carry: slice | np.ndarray
+    columns: np.ndarray
+
 
 @dataclass(frozen=True)
 class ArmDisplacement:
@@ -119,10 +164,12 @@ def sample_arm_points(robot: Robot, per_link: int = PER_LINK) -> ArmPoints:
     """
     if per_link < 2:
         raise ValueError(f"per_link is {per_link}; at least 2 points per link are needed")
-    model = robot.model
-    kinematics = b"".join(p.homogeneous.tobytes() for p in model.jointPlacements)
-    key = (robot.source, per_link, robot.tool_frame, tuple(model.names), kinematics)
-    return _CACHE.get(key, lambda: _sample(robot, per_link))
+
+    def shared() -> ArmPoints:
+        key = (robot.source, per_link, robot.tool_frame, kinematics_key(robot))
+        return _CACHE.get(key, lambda: _sample(robot, per_link))
+
+    return robot.cache.get(("arm_points", per_link), shared)
 
 
 def _sample(robot: Robot, per_link: int) -> ArmPoints:
@@ -294,6 +341,11 @@ def point_positions(robot: Robot, points: ArmPoints, q: np.ndarray) -> np.ndarra
     return _place(points, R, p)[:, :, 0]
 
 
+#: Relative slack on the bound of a joint's points' displacement (:func:`max_displacement`),
+#: far above its round-off (~1e-15): a joint and sample are skipped only when surely below.
+BOUND_SLACK = 1e-9
+#: And an absolute one [m], for displacements at the round-off of the placements (~1e-16 m).
+BOUND_FLOOR = 1e-12
 #: Samples whose point displacements are formed at once (memory: CHUNK x k x 3 floats).
 CHUNK = 256
 
@@ -311,10 +363,9 @@ def _place(points: ArmPoints, R: np.ndarray, p: np.ndarray) -> np.ndarray:
     """
     count = len(R)
     out = np.empty((len(points.points), 3 * count))
-    used = np.unique(points.joints)
-    bounds = np.searchsorted(points.joints, [*used, used[-1] + 1])  # the points are by joint
-    for c, j in enumerate(used):
-        mine = slice(int(bounds[c]), int(bounds[c + 1]))
+    groups = points.groups
+    for j, start, stop in zip(groups.joints, groups.starts, groups.stops, strict=True):
+        mine = slice(int(start), int(stop))
         columns = R[:, j].transpose(2, 1, 0).reshape(3, 3 * count)  # [b, a T + t] = R[t, a, b]
         np.matmul(points.points[mine], columns, out=out[mine])
         out[mine] += p[:, j].T.reshape(-1)
@@ -322,7 +373,11 @@ def _place(points: ArmPoints, R: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def max_displacement(
-    robot: Robot, points: ArmPoints, q_traj: np.ndarray, swept: bool = True
+    robot: Robot,
+    points: ArmPoints,
+    q_traj: np.ndarray,
+    swept: bool = True,
+    placements: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> ArmDisplacement:
     """The largest straight-line displacement of any point from where it was at ``q_traj[0]``.
 
@@ -330,29 +385,77 @@ def max_displacement(
     sample t (R, o: the joint's placements); the squared lengths are compared, and the
     square root taken of the largest (on a tie, the first sample, then the first point).
 
+    Only the joints and samples that may hold the largest are formed: the points of joint j
+    lie within r_j of a centre c_j, so at sample t none moves farther than
+    |(R_t - R_0) c_j + o_t - o_0| + ||R_t - R_0||_F r_j; the joint's points are formed at the
+    samples where this bound reaches the largest displacement found so far (first at the
+    sample and joint of the largest bound), all others are below it.
+
     Args:
         robot: The robot.
         points: Its points (:func:`sample_arm_points`).
         q_traj: Configurations [rad], shape (T, n), T >= 1; the first is the reference (the
             stop signal).
         swept: Whether to return every point's positions (for a 3D drawing; T x k x 3
-            floats); the displacements are formed :data:`CHUNK` samples at a time.
+            floats).
+        placements: The joints' placements at ``q_traj`` (``joint_placements(robot,
+            q_traj)``), if they are at hand.
     """
     qs = np.atleast_2d(np.asarray(q_traj, dtype=float))
-    R, p = joint_placements(robot, qs)
+    R, p = joint_placements(robot, qs) if placements is None else placements
+    groups = points.groups
+    carry = groups.carry
+    turn = R[:, carry] - R[:1, carry]  # (T, m, 3, 3)
+    shift = p[:, carry] - p[:1, carry]  # (T, m, 3)
+    middle = np.einsum("tgab,gb->tga", turn, groups.centers) + shift
+    bound = np.sqrt(np.einsum("tga,tga->tg", middle, middle))
+    bound += np.sqrt(np.einsum("tgab,tgab->tg", turn, turn)) * groups.radii
+    bound = bound * (1.0 + BOUND_SLACK) + BOUND_FLOOR
+    t, g = np.unravel_index(int(np.argmax(bound)), bound.shape)
     best, index, sample = 0.0, 0, 0
-    for first in range(0, len(qs), CHUNK):
-        chunk = slice(first, first + CHUNK)
-        step = _place(points, R[chunk] - R[:1], p[chunk] - p[:1])
-        squared = np.einsum("kit,kit->kt", step, step)
-        largest = float(np.max(squared))
-        if largest > best:
-            ks, ts = np.divmod(np.flatnonzero(squared == largest), squared.shape[1])
-            first_hit = np.lexsort((ks, ts))[0]
-            best, index, sample = largest, int(ks[first_hit]), first + int(ts[first_hit])
+    # The likeliest sample of the likeliest joint first, a high bar for the others; then each
+    # joint (likeliest first) at the samples where its bound reaches the bar.
+    order = [int(h) for h in np.argsort(-np.max(bound, axis=0), kind="stable")]
+    for group, first in ((int(g), int(t)), *((h, None) for h in order)):
+        if first is None:
+            rows = [int(r) for r in np.flatnonzero(bound[:, group] >= math.sqrt(best))]
+        else:
+            rows = [first]
+        for chunk in range(0, len(rows), CHUNK):
+            some = rows[chunk : chunk + CHUNK]
+            largest, k, r = _largest(points, group, turn[some, group], shift[some, group])
+            if largest > best or (largest == best and (some[r], k) < (sample, index)):
+                best, index, sample = largest, k, some[r]
     link = points.links[int(points.link[index])]
     kept = np.ascontiguousarray(_place(points, R, p).transpose(2, 0, 1)) if swept else None
     return ArmDisplacement(math.sqrt(best), index, link, sample, kept)
+
+
+def _largest(
+    points: ArmPoints, group: int, turn: np.ndarray, shift: np.ndarray
+) -> tuple[float, int, int]:
+    """The largest squared displacement [m^2] of one joint's points over some samples.
+
+    Args:
+        points: The points.
+        group: The joint's group (:attr:`ArmPoints.groups`).
+        turn: R_t - R_0 of the joint at those samples, shape (s, 3, 3).
+        shift: o_t - o_0 at those samples [m], shape (s, 3).
+
+    Returns:
+        ``(squared, point, row)``: the largest, the point (a row of :attr:`ArmPoints.points`)
+        and the sample (a row of ``turn``) where it is reached, the first sample and then the
+        first point on a tie.
+    """
+    groups = points.groups
+    start, stop = int(groups.starts[group]), int(groups.stops[group])
+    count = len(turn)
+    columns = turn.transpose(2, 1, 0).reshape(3, 3 * count)  # [b, a s + r] = turn[r, a, b]
+    step = (points.points[start:stop] @ columns + shift.T.reshape(-1)).reshape(-1, 3, count)
+    squared = np.einsum("kir,kir->kr", step, step)
+    first = int(np.argmax(squared.T))  # by sample, then by point: the first hit of a tie
+    r, k = divmod(first, len(squared))
+    return float(squared[k, r]), start + k, r
 
 
 def point_speeds(robot: Robot, points: ArmPoints, q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -362,12 +465,15 @@ def point_speeds(robot: Robot, points: ArmPoints, q: np.ndarray, v: np.ndarray) 
     in its own frame (Pinocchio's ``data.v``); a rotation to world axes keeps its length.
     """
     model = robot.model
-    data = model.createData()
+    data = pinocchio_data(robot)
     pin.forwardKinematics(model, data, np.asarray(q, dtype=float), np.asarray(v, dtype=float))
-    speeds = np.empty(len(points.points))
-    for joint in np.unique(points.joints):
-        mine = points.joints == joint
-        motion = data.v[int(joint)]
-        local = motion.linear + np.cross(motion.angular, points.points[mine])
-        speeds[mine] = np.linalg.norm(local, axis=1)
-    return speeds
+    groups = points.groups
+    motions = [data.v[int(joint)] for joint in groups.joints]
+    linear = np.array([m.linear for m in motions]).T[:, groups.rows]  # (3, k): each point's
+    angular = np.array([m.angular for m in motions]).T[:, groups.rows]
+    (l0, l1, l2), (a0, a1, a2), (p0, p1, p2) = linear, angular, groups.columns
+    # v + omega x p (np.cross's products), and its length as np.linalg.norm(..., axis=1) adds
+    x0 = l0 + (a1 * p2 - a2 * p1)
+    x1 = l1 + (a2 * p0 - a0 * p2)
+    x2 = l2 + (a0 * p1 - a1 * p0)
+    return np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)

@@ -27,10 +27,12 @@ for a prismatic one (the columns of its linear Jacobian times the rates). The Ja
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
+from ..files.model_cache import ModelCache
 from .robot import Robot
 
 _LWA = pin.LOCAL_WORLD_ALIGNED
@@ -64,6 +66,7 @@ class _Chain:
         axes: Unit axis of each joint in its own frame, shape (njoints, 3).
         revolute: Whether each joint turns (else it slides).
         index: Each joint's coordinate in q and v.
+        skews: The cross-product matrix [a]x of each joint's axis, shape (njoints, 3, 3).
     """
 
     parents: tuple[int, ...]
@@ -72,6 +75,7 @@ class _Chain:
     axes: np.ndarray
     revolute: tuple[bool, ...]
     index: tuple[int, ...]
+    skews: np.ndarray
 
 
 def _chain(model: pin.Model) -> _Chain | None:
@@ -88,6 +92,9 @@ def _chain(model: pin.Model) -> _Chain | None:
         revolute.append(turns)
         index.append(int(joint.idx_q))
     placements = model.jointPlacements
+    x, y, z = axes.T
+    zero = np.zeros_like(x)
+    skews = np.stack([[zero, -z, y], [z, zero, -x], [-y, x, zero]]).transpose(2, 0, 1)
     return _Chain(
         parents=tuple(int(p) for p in model.parents),
         rotations=np.array([np.asarray(m.rotation) for m in placements]),
@@ -95,6 +102,7 @@ def _chain(model: pin.Model) -> _Chain | None:
         axes=axes,
         revolute=tuple(revolute),
         index=tuple(index),
+        skews=np.ascontiguousarray(skews),
     )
 
 
@@ -108,20 +116,23 @@ def _numpy_placements(chain: _Chain, qs: np.ndarray) -> tuple[np.ndarray, np.nda
     R = np.empty((njoints, count, 3, 3))  # joint-major: each joint's samples are contiguous
     p = np.empty((njoints, count, 3))
     R[0], p[0] = np.eye(3), 0.0
+    term = np.empty((count, 3, 3))
     for j in range(1, njoints):
         parent = chain.parents[j]
         rows = R[parent].reshape(-1, 3)  # the parent's rotations, stacked: (3 count, 3)
         fixed = (rows @ chain.rotations[j]).reshape(count, 3, 3)
-        p[j] = p[parent] + (rows @ chain.translations[j]).reshape(count, 3)
+        np.add(p[parent], (rows @ chain.translations[j]).reshape(count, 3), out=p[j])
         q = qs[:, chain.index[j]]
         axis = chain.axes[j]
         along = (fixed.reshape(-1, 3) @ axis).reshape(count, 3)  # the axis in the world
         if chain.revolute[j]:
             c, s = np.cos(q)[:, None, None], np.sin(q)[:, None, None]
-            x, y, z = axis
-            skew = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-            crossed = (fixed.reshape(-1, 3) @ skew).reshape(count, 3, 3)
-            R[j] = c * fixed + s * crossed + ((1.0 - c) * along[:, :, None]) * axis
+            crossed = (fixed.reshape(-1, 3) @ chain.skews[j]).reshape(count, 3, 3)
+            # c fixed + s crossed + ((1 - c) along) axis, in place, in that order
+            np.multiply(c, fixed, out=R[j])
+            R[j] += np.multiply(s, crossed, out=term)
+            np.multiply((1.0 - c) * along[:, :, None], axis, out=term)
+            R[j] += term
         else:
             R[j] = fixed
             p[j] += along * q[:, None]
@@ -141,9 +152,47 @@ def _pinocchio_placements(model: pin.Model, qs: np.ndarray) -> tuple[np.ndarray,
     return R, p
 
 
+#: Chains of the models seen, by their kinematics (:func:`kinematics_key`): a study builds a
+#: copy of its robot per case (a payload's), whose own cache starts empty.
+_CHAINS = ModelCache(16)
+
+
+def kinematics_key(robot: Robot) -> tuple[Any, ...]:
+    """What the motion of the robot's joints depends on, hashable, kept in the robot's cache.
+
+    The joints' names, parents, types (with the axis of an unaligned one) and fixed placements
+    (exact bytes): two models with equal keys place their joints alike (a payload changes the
+    inertias only). Frames are not in it.
+    """
+
+    def build() -> tuple[Any, ...]:
+        model = robot.model
+        joints = []
+        for joint in model.joints:
+            kind = joint.shortname()
+            axis = joint.extract().axis.tobytes() if kind.endswith("Unaligned") else b""
+            joints.append((kind, axis))
+        placements = b"".join(m.homogeneous.tobytes() for m in model.jointPlacements)
+        return tuple(model.names), tuple(model.parents), tuple(joints), placements
+
+    return robot.cache.get("kinematics_key", build)
+
+
 def _cached_chain(robot: Robot) -> _Chain | None:
-    """:func:`_chain` of the robot's model, kept in the robot's cache."""
-    return robot.cache.get("kinematic_chain", lambda: _chain(robot.model))
+    """:func:`_chain` of the robot's model, kept in its cache, shared by equal kinematics."""
+
+    def shared() -> tuple[_Chain | None]:
+        return _CHAINS.get(kinematics_key(robot), lambda: (_chain(robot.model),))
+
+    return robot.cache.get("kinematic_chain", shared)[0]
+
+
+def pinocchio_data(robot: Robot) -> pin.Data:
+    """The robot's Pinocchio ``Data``, one per model, kept in its cache.
+
+    Every call computes what it reads (see :mod:`vtm_pin.files.model_cache`).
+    """
+    return robot.cache.get("data", robot.model.createData)
 
 
 def joint_placements(model: pin.Model | Robot, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -178,16 +227,28 @@ def _frame_velocity(
 
     The sum over the joints from ``joint`` to the root of their Jacobian columns times their
     rates ``vs`` [rad/s or m/s], shape (T, nv); ``R``, ``p`` are the joints' placements at the
-    T samples. Shape (T, 3).
+    T samples. Shape (T, 3). The joints' terms are formed all at once.
     """
-    velocity = np.zeros((len(R), 3))
+    path = []
     j = joint
     while j > 0:
-        axis = (R[:, j].reshape(-1, 3) @ chain.axes[j]).reshape(-1, 3)  # in the world
-        column = _cross(axis, origin - p[:, j]) if chain.revolute[j] else axis
-        velocity += column * vs[:, chain.index[j], None]
+        path.append(j)
         j = chain.parents[j]
-    return velocity
+    if not path:
+        return np.zeros((len(R), 3))
+    count = len(R)
+    axes = np.empty((count, len(path), 3))  # each joint's axis in the world
+    for k, j in enumerate(path):
+        axes[:, k] = (R[:, j].reshape(-1, 3) @ chain.axes[j]).reshape(-1, 3)
+    columns = axes.copy()
+    turns = [k for k, j in enumerate(path) if chain.revolute[j]]
+    if turns:
+        arms = origin[:, None] - p[:, [path[k] for k in turns]]
+        columns[:, turns] = cross(axes[:, turns], arms)
+    terms = columns * vs[:, [chain.index[j] for j in path], None]
+    # summed from ``joint`` to the root, one joint after the other (the reduced axis is not
+    # the innermost one, so NumPy adds in order)
+    return np.add.reduce(terms, axis=1)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -195,6 +256,17 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a0, a1, a2 = a.T
     b0, b1, b2 = b.T
     return np.column_stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products along the last axis (of length 3), broadcast.
+
+    ``np.cross`` costs more on small arrays; these are its products and differences, so its
+    bits.
+    """
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 def _frame(model: pin.Model, robot: Robot, tool_frame: str | None) -> tuple[int, pin.Frame]:
@@ -210,7 +282,11 @@ def _origins(R: np.ndarray, p: np.ndarray, frame: pin.Frame) -> np.ndarray:
 
 
 def compute_tool_motion(
-    robot: Robot, q: np.ndarray, v: np.ndarray, tool_frame: str | None = None
+    robot: Robot,
+    q: np.ndarray,
+    v: np.ndarray,
+    tool_frame: str | None = None,
+    placements: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Tool-frame positions and speeds over samples of (q, v).
 
@@ -219,6 +295,9 @@ def compute_tool_motion(
         q: Joint positions [rad], shape (k, n) (or (n,) for one sample).
         v: Joint rates [rad/s], the same shape.
         tool_frame: Frame followed; the robot's tool frame by default.
+        placements: The joints' placements at ``q`` (:func:`joint_placements`), if they are
+            at hand: they replace the NumPy steps (Pinocchio's loop, below :data:`NUMPY_FROM`
+            samples, does not need them).
 
     Returns:
         ``(positions, speeds)``: positions of the frame's origin in the world [m], shape
@@ -233,7 +312,7 @@ def compute_tool_motion(
     chain = _cached_chain(robot)
     if chain is None or len(qs) < NUMPY_FROM:
         return _pinocchio_motion(model, fid, qs, vs)
-    R, p = _numpy_placements(chain, qs)
+    R, p = _numpy_placements(chain, qs) if placements is None else placements
     positions = _origins(R, p, frame)
     velocities = _frame_velocity(chain, R, p, int(frame.parentJoint), positions, vs)
     return positions, np.sqrt(np.einsum("ki,ki->k", velocities, velocities))
@@ -270,7 +349,7 @@ def compute_tool_jacobian(robot: Robot, q: np.ndarray, tool_frame: str | None = 
     impacts), where one Pinocchio call is faster than the NumPy steps.
     """
     model = robot.model
-    data = model.createData()
+    data = pinocchio_data(robot)
     fid = model.getFrameId(tool_frame or robot.tool_frame)
     qs = np.asarray(q, dtype=float)
     J = [pin.computeFrameJacobian(model, data, qi, fid, _LWA)[:3] for qi in np.atleast_2d(qs)]

@@ -1,0 +1,319 @@
+"""Every figure of the stopping report and of ``stop_figures``, against a by-hand computation.
+
+Issue 27 made the report's code array-wise (one forward kinematics of the stop shared by the
+tool's path and the arm's points, per-joint loops as array operations, the arm's largest
+displacement formed only where a bound says it may be). This file computes every figure
+again the plain way, sample by sample and joint by joint with Pinocchio's own kinematics, on
+scenarios that cover the branches: category 0 and 1, a payload, brakes that cannot hold the
+arm (it collapses: NaN stopping times), a brake that reverses and slips, a signal after the
+start, a brake whose normal force ramps up.
+
+Tolerances:
+
+* the figures of the joints (stopping, latch times, angles, impulses, surges, holding torques
+  and margins) are the same IEEE operations in the same order as by hand: equal bit for bit;
+* the tool's and the arm's figures come from vtm_pin's NumPy kinematics here and from
+  Pinocchio's per-sample placements and velocities by hand, which round differently: positions
+  agree to ~1e-16 m per metre of arm, so TOL = 1e-12 relative, with an absolute floor of
+  FLOOR = 1e-14 (m, m/s) for figures near 0 (a joint that does not move).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+from conftest import SCENARIOS
+
+import vtm_pin as vp
+from vtm_pin.outputs.figures import stop_figures
+from vtm_pin.outputs.flags import arm_length, gravity_loads
+from vtm_pin.outputs.stopping import compute_stopping_report
+from vtm_pin.physics.arm_points import sample_arm_points
+from vtm_pin.physics.brakes import BrakeEventKind, BrakeMode
+from vtm_pin.physics.kinematics import NUMPY_FROM
+
+TOL = 1e-12  # [-] NumPy against Pinocchio kinematics: see the module docstring
+FLOOR = 1e-14  # [m, m/s]
+GUARD = {"detection_time": 0.03, "response_time": 0.012, "latency": 0.004}  # [s]
+SSM = {"intrusion_distance": 0.208, "human_uncertainty": 0.1, "robot_uncertainty": 0.02}  # [m]
+COARSE = {"method": "dop853", "rtol": 1.0e-8, "atol": 1.0e-10, "output_dt": 5.0e-3}
+
+
+def shipped(name: str, **extra) -> dict:
+    raw = yaml.safe_load((SCENARIOS / f"{name}.yaml").read_text())
+    raw.update(extra)
+    return raw
+
+
+CASES = {
+    # category 0, 10 kg payload, S and S_p with their inputs
+    "annex_b_cat0_payload": shipped(
+        "ur10_annex_b",
+        duration=0.6,
+        safeguard=GUARD,
+        separation={"iso_ts_15066": SSM},
+    ),
+    "annex_b_cat1": shipped(
+        "ur10_annex_b", duration=0.8, stop={"t": 0.0, "category": 1, "ramp_time": 0.3}
+    ),
+    # a shoulder brake far too weak for the 10 kg at full reach: the arm collapses
+    "brake_cannot_hold": shipped(
+        "ur10_annex_b",
+        duration=0.4,
+        brakes={
+            "shoulder_lift_joint": {"delay": 0.05, "sliding_torque": 0.05, "static_torque": 0.1}
+        },
+    ),
+    # the re-slip pendulum: joint 1's brake reverses, sticks and slips; signal at 0.1 s
+    "reverses_late_signal": {
+        "robot": "planar_3r",
+        "initial": {"q": [0.0, 1.2, 0.0], "v": [2.0, 0.0, 0.0]},
+        "duration": 2.0,
+        "integrator": COARSE,
+        "stop": {"t": 0.1, "category": 0},
+        "brakes": {"joint1": {"delay": 0.0, "sliding_torque": 300.0, "static_torque": 400.0}},
+    },
+    # main-axis brakes whose normal force ramps up (the margin's limits change along the stop),
+    # ideal wrist brakes (margin +inf), lock events
+    "ramped_brakes_cat0": shipped(
+        "rx160l_estop_cat0",
+        duration=0.6,
+        integrator=COARSE,
+        brakes={
+            "joint_1": {"delay": 0.08, "ramp": 0.02, "sliding_torque": 3.0, "static_torque": 4.0},
+            "joint_2": {"delay": 0.08, "ramp": 0.02, "sliding_torque": 7.0, "static_torque": 9.0},
+            "joint_3": {"delay": 0.08, "sliding_torque": 3.0, "static_torque": 4.0},
+            "joint_4": {"delay": 0.08, "ideal": True},
+            "joint_5": {"delay": 0.08, "ideal": True},
+            "joint_6": {"delay": 0.08, "ideal": True},
+        },
+    ),
+}
+
+
+@pytest.fixture(scope="module", params=list(CASES))
+def case(request):
+    scenario = vp.build_scenario(CASES[request.param], source=request.param, base_dir=SCENARIOS)
+    result = vp.run_scenario(scenario)
+    report = compute_stopping_report(scenario.robot, result, scenario.brakes, scenario.tool_frame)
+    figures = stop_figures(scenario, result, report)
+    i0 = int(np.argmax(result.t >= report.signal_time))
+    hand = kinematics_by_hand(scenario, result, i0)
+    return request.param, scenario, result, report, figures, hand
+
+
+def rest_time(t, v, rest_speed):
+    """When |v| falls below rest_speed for good, sample by sample (NaN: still above)."""
+    last = None
+    for i in range(len(t)):
+        if abs(v[i]) > rest_speed:
+            last = i
+    if last is None:
+        return float(t[0])
+    if last == len(t) - 1:
+        return math.nan
+    span = t[last + 1] - t[last]
+    if span <= 0.0:
+        return float(t[last])
+    speed_a, speed_b = abs(v[last]), abs(v[last + 1])
+    return float(t[last] + (speed_a - rest_speed) / (speed_a - speed_b) * span)
+
+
+def joints_by_hand(robot, result, brakes):
+    """Per joint: stop, latch time, surge, lock impulse, peak holding torque, margin."""
+    n, names = robot.nv, list(robot.joints)
+    t_signal = result.stop.t
+    i0 = next(i for i, t in enumerate(result.t) if t >= t_signal)
+    stop = [
+        rest_time(result.t[i0:], result.v[i0:, j], result.stop.rest_speed) - t_signal
+        for j in range(n)
+    ]
+    latch, surge, impulse = [math.nan] * n, [0.0] * n, [0.0] * n
+    for event in result.events:
+        for name in event.lock:
+            j = names.index(name)
+            mode = result.modes[-1, j]
+            if mode in (BrakeMode.STUCK, BrakeMode.LOCKED) or not result.free[-1, j]:
+                latch[j] = max(0.0, event.t - t_signal)
+        for label, lam in zip(event.rows, event.transition.Lambda, strict=True):
+            if label.kind.name == "JOINT":
+                impulse[names.index(label.name)] += -lam
+        held = {names.index(x) for x in event.locked_before + event.lock}
+        for j in range(n):
+            if j not in held:
+                surge[j] = max(surge[j], abs(event.v_plus[j]) - abs(event.v_minus[j]))
+    peak, margin = [math.nan] * n, [math.nan] * n
+    for j in range(n):
+        held = [
+            abs(h)
+            for h, free in zip(result.holding[:, j], result.free[:, j], strict=True)
+            if not free and math.isfinite(h)
+        ]
+        if held:
+            peak[j] = max(held)
+    for brake in brakes:
+        j = names.index(brake.joint)
+        ratio = float(robot.gear_ratio[j])
+        engaged = [
+            e.t
+            for e in result.brake_events
+            if e.joint == brake.joint and e.kind in (BrakeEventKind.ENGAGE, BrakeEventKind.LOCK)
+        ]
+        spare = [
+            brake.static(t - engaged[-1] if brake.friction.ramp else 0.0, ratio) - abs(h)
+            for t, h, mode in zip(result.t, result.holding[:, j], result.modes[:, j], strict=True)
+            if mode == BrakeMode.STUCK and math.isfinite(h)
+        ]
+        if brake.ideal:
+            margin[j] = math.inf
+        elif spare:
+            margin[j] = min(spare)
+    return i0, stop, latch, surge, impulse, peak, margin
+
+
+def kinematics_by_hand(scenario, result, i0):
+    """Tool path and speeds, the arm's largest displacement and fastest point, by Pinocchio."""
+    robot = scenario.robot
+    model, data = robot.model, robot.model.createData()
+    fid = model.getFrameId(scenario.tool_frame)
+    points = sample_arm_points(robot)
+    path, speeds, arm = [], [], []
+    for q, v in zip(result.q[i0:], result.v[i0:], strict=True):
+        pin.forwardKinematics(model, data, q, v)
+        path.append(pin.updateFramePlacement(model, data, fid).translation.copy())
+        speeds.append(
+            np.linalg.norm(pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear)
+        )
+        placed = np.empty_like(points.points)  # each joint's points by its placement
+        for j in np.unique(points.joints):
+            mine = points.joints == j
+            M = data.oMi[int(j)]
+            placed[mine] = points.points[mine] @ M.rotation.T + M.translation
+        arm.append(placed)
+    path, arm = np.array(path), np.array(arm)
+    pin.forwardKinematics(model, data, result.q[i0], result.v[i0])
+    point_speeds = [
+        np.linalg.norm(data.v[int(j)].linear + np.cross(data.v[int(j)].angular, x))
+        for j, x in zip(points.joints, points.points, strict=True)
+    ]
+    surge = 0.0
+    for event in result.events:
+        J = pin.computeFrameJacobian(model, data, event.q, fid, pin.LOCAL_WORLD_ALIGNED)[:3]
+        surge = max(surge, np.linalg.norm(J @ event.v_plus) - np.linalg.norm(J @ event.v_minus))
+    return {
+        "path": path,
+        "speeds": np.array(speeds),
+        "arm": float(np.max(np.linalg.norm(arm - arm[0], axis=2))),
+        "v_r": max(float(np.max(point_speeds)), float(speeds[0])),
+        "surge": surge,
+    }
+
+
+def close(value, expected, what):
+    if expected is None or (isinstance(expected, float) and math.isnan(expected)):
+        assert value is None or math.isnan(value), what
+    else:
+        assert value == pytest.approx(expected, rel=TOL, abs=FLOOR), what
+
+
+def test_every_figure_of_the_report_equals_the_computation_by_hand(case):
+    name, scenario, result, report, _, _ = case
+    robot = scenario.robot
+    i0, stop, latch, surge, impulse, peak, margin = joints_by_hand(robot, result, scenario.brakes)
+    for j, joint in enumerate(report.joints):
+        angle = result.q[-1, j] - result.q[i0, j]
+        by_hand = (stop[j], latch[j], angle, angle * robot.gear_ratio[j], surge[j])
+        by_hand += (result.brake_impulse[j], impulse[j], peak[j], margin[j])
+        got = (joint.stop_time, joint.latch_time, joint.stop_angle, joint.stop_angle_motor)
+        got += (joint.peak_surge, joint.friction_impulse, joint.lock_impulse)
+        got += (joint.peak_holding_torque, joint.holding_margin)
+        # bit for bit: NaN where NaN, the same floats elsewhere
+        np.testing.assert_array_equal(got, by_hand, err_msg=f"{name}: {joint.joint}")
+    if all(map(math.isfinite, stop)):
+        assert report.all_stopped_time == max(stop)
+    else:
+        assert math.isnan(report.all_stopped_time) and report.moving
+    hand = case[-1]
+    np.testing.assert_allclose(report.tcp_path, hand["path"], rtol=0, atol=FLOOR)
+    close(
+        report.tcp_distance, float(np.linalg.norm(hand["path"][-1] - hand["path"][0])), "distance"
+    )
+    length = float(np.sum(np.linalg.norm(np.diff(hand["path"], axis=0), axis=1)))
+    close(report.tcp_path_length, length, "path length")
+    close(report.tcp_peak_speed, float(np.max(hand["speeds"])), "peak speed")
+    close(report.tcp_peak_surge, hand["surge"], "peak surge")
+
+
+def test_every_figure_of_stop_figures_equals_the_computation_by_hand(case):
+    name, scenario, result, _, figures, _ = case
+    robot, state = scenario.robot, scenario.test_state
+    i0, stop, *_ = joints_by_hand(robot, result, scenario.brakes)
+    hand = case[-1]
+    angles = [abs(result.q[-1, j] - result.q[i0, j]) for j in range(robot.nv)]
+    tested = state.joint_index if state is not None else int(np.argmax(angles))
+    T_robot = max(stop) if all(map(math.isfinite, stop)) else math.nan
+    reach = float(np.max(np.linalg.norm(hand["path"] - hand["path"][0], axis=1)))
+    S_arm = max(hand["arm"], reach)
+    separation = scenario.separation.figures(T_robot, hand["v_r"], S_arm)
+    others = [a for j, a in enumerate(angles) if j != tested]
+    expected = {
+        "robot_stop_time": T_robot,
+        "test_stop_time": stop[tested],
+        "stop_angle": angles[tested],
+        "tcp_max_displacement": reach,
+        "arm_max_displacement": S_arm,
+        "tcp_distance": float(np.linalg.norm(hand["path"][-1] - hand["path"][0])),
+        "tcp_path": float(np.sum(np.linalg.norm(np.diff(hand["path"], axis=0), axis=1))),
+        "tool_drop": max(0.0, hand["path"][0, 2] - float(np.min(hand["path"][:, 2]))),
+        "other_travel": max(others, default=0.0) if state is not None else None,
+        "peak_tcp_speed": float(np.max(hand["speeds"])),
+        "tcp_speed_at_signal": float(hand["speeds"][0]),
+        "arm_speed_at_signal": hand["v_r"],
+        "overall_stop_time": separation["T"],
+        "iso13855_distance": separation["S"],
+        "ssm_distance": separation["S_p"],
+        "test_speed": abs(state.speed) if state is not None else None,
+        "test_reach": state.reach if state is not None else None,
+    }
+    for j, joint in enumerate(robot.joints):
+        expected[f"stop_time.{joint}"] = stop[j]
+        expected[f"stop_angle.{joint}"] = angles[j]
+    assert set(figures.metrics) == set(expected)
+    for key, value in expected.items():
+        close(figures.metrics[key], value, f"{name}: {key}")
+
+
+def test_the_cases_cover_what_they_claim(case):
+    name, scenario, result, report, figures, _ = case
+    kinds = {e.kind for e in result.brake_events}
+    flags = {f.kind for f in figures.flags}
+    i0 = int(np.argmax(result.t >= report.signal_time))
+    checks = {
+        "annex_b_cat0_payload": scenario.payload is not None
+        and figures.metrics["ssm_distance"] is not None,
+        "annex_b_cat1": result.stop.category == 1 and figures.status == "ok",
+        "brake_cannot_hold": "brake_cannot_hold" in flags
+        and figures.metrics["robot_stop_time"] is None,
+        "reverses_late_signal": BrakeEventKind.REVERSE in kinds
+        and i0 > 0
+        and len(result.t) - i0 >= NUMPY_FROM,
+        "ramped_brakes_cat0": any(b.friction.ramp > 0.0 for b in scenario.brakes if not b.ideal)
+        and result.events,
+    }
+    assert checks[name]
+
+
+def test_the_flags_model_figures_equal_pinocchios_own(case):
+    _, scenario, result, _, _, _ = case
+    robot = scenario.robot
+    model, data = robot.model, robot.model.createData()
+    rows = result.q[:: max(1, len(result.q) // 7)]
+    by_hand = np.abs([pin.computeGeneralizedGravity(model, data, q) for q in rows])
+    np.testing.assert_array_equal(gravity_loads(robot, rows), by_hand)
+    tool = model.frames[model.getFrameId(robot.tool_frame)]
+    length = sum(float(np.linalg.norm(m.translation)) for m in list(model.jointPlacements)[1:])
+    assert arm_length(robot) == length + float(np.linalg.norm(tool.placement.translation))
