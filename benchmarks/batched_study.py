@@ -83,7 +83,8 @@ def main() -> None:
         total = sum(split.values())
         print("batched engine's time, summed over the workers [s] (share):")
         for part in PARTS:
-            print(f"  {part:>9}: {split[part]:8.2f} ({100 * split[part] / total:4.1f} %)")
+            share = f"{100 * split[part] / total:4.1f} %" if total > 0 else "no batched case"
+            print(f"  {part:>9}: {split[part]:8.2f} ({share})")
         fallbacks = results["batched"][1]["engines"]["fallbacks"]
         print(f"  fallbacks to the scalar engine: {fallbacks or 'none'}")
 

@@ -65,7 +65,7 @@ from matplotlib.figure import Figure
 import vtm_pin as vp
 from vtm_pin.core.batch import model_key
 from vtm_pin.core.simulation import simulate
-from vtm_pin.outputs.stopping import _rest_time as rest_time
+from vtm_pin.outputs.stopping import _rest_times as rest_times
 from vtm_pin.outputs.stopping import compute_stopping_report
 from vtm_pin.physics.friction import Coulomb
 from vtm_pin.scene.scenario import build_scenario
@@ -296,9 +296,9 @@ def run_mujoco(
     v = np.concatenate(speeds)
     test, arm = v[:, rows, joint], v.max(axis=2)
     figures = {
-        "test_stop_time": np.array([rest_time(t, test[:, i], rest) for i in rows]),
+        "test_stop_time": rest_times(t, test, rest),
         "stop_angle": np.abs(state[rows, 1 + joint] - q0[rows, joint]),
-        "robot_stop_time": np.array([rest_time(t, arm[:, i], rest) for i in rows]),
+        "robot_stop_time": rest_times(t, arm, rest),
     }
     return MujocoStops(dt, figures, wall, time.perf_counter() - began, float(t[-1]), step)
 
