@@ -3,7 +3,7 @@
 Runs ``vtm-pin study STUDY --workers W --engine E`` as a subprocess into a fresh folder, for
 the batched and the scalar engine, and prints per engine the median wall time of the whole
 command (process start, cases, table, graphs and report), the cases per second, and the
-batched engine's speed-up. From the study's ``summary.json`` it splits the time: the
+batched engine's speed-up. From the study's ``summary.json`` it splits the time: the mean
 per-case model build (scenario, payload, Annex-B pose) and report (stopping figures), and the
 batched engine's own split, summed over the workers (:data:`vtm_pin.core.batch.PARTS`: Pinocchio
 calls with the solves of locked runs, the runs' hybrid loops, event location, vectorised
@@ -71,7 +71,7 @@ def main() -> None:
     for engine, (wall, summary) in results.items():
         evals = summary["engines"]["rhs_evals_total"]
         per_rhs = wall / evals
-        timing = summary["timing_median"]
+        timing = summary["timing_mean"]
         speedup = f"{scalar / wall:8.2f}" if scalar else f"{'-':>8}"
         print(
             f"{engine:>8} {wall:>9.2f} {cases / wall:>8.1f} {speedup} {evals:>10d} "

@@ -854,12 +854,15 @@ def build_study_summary(
         "flagged": sum(bool(r.get("flags")) for r in records),
     }
     timing = [r["timing"] for r in records if "timing" in r]
-    split = {
-        part: statistics.median(t[part] for t in timing if part in t)
-        if any(part in t for t in timing)
-        else None
-        for part in ("build", "simulate", "report", "write")
-    }
+    split, mean = (
+        {
+            part: average(t[part] for t in timing if part in t)
+            if any(part in t for t in timing)
+            else None
+            for part in ("build", "simulate", "report", "write")
+        }
+        for average in (statistics.median, statistics.fmean)
+    )
     flagged = [r for r in records if r.get("flags")]
     chains = [r["chain"] for r in records if r.get("chain")]
     return {
@@ -885,6 +888,7 @@ def build_study_summary(
         "definitions": DEFINITIONS,
         "units": {**METRICS, "wall_time": "s"},
         "timing_median": split,
+        "timing_mean": mean,
         "wall_time_total": sum(float(r["wall_time"]) for r in records),
         "stopping_chain": chains[0] if chains else {},
         "bounds": next((r["bounds"] for r in records if r.get("bounds")), {}),
