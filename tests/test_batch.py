@@ -9,6 +9,7 @@ studies. Holding torques and work are compared relative to their size (up to 1e4
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,7 @@ from vtm_pin.core.batch import (
     run_many,
     simulate_many,
 )
-from vtm_pin.exceptions import SimulationError, VtmError
+from vtm_pin.exceptions import SimulationError, VtmError, VtmWarning
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.numerics.integrators import DOP853, RK4
 from vtm_pin.scene.scenario import SCENARIOS_DIR
@@ -376,9 +377,24 @@ def test_a_runs_share_of_its_batch_leaves_out_the_callers_report() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["ur10_annex_b", "ur5_cb3_annex_b", "ur10_brake_wear"])
 def test_shipped_studies_agree(name: str, tmp_path: Path) -> None:
-    """Every case of the shipped studies: the batched table equals the scalar one to 1e-8."""
-    scalar, batched = run_both(find_study(name), tmp_path, workers=2)
+    """Every case of the shipped studies: the batched table equals the scalar one to 1e-8.
+
+    A study with flagged cases warns once per run (ur5_cb3_annex_b: one case whose joint
+    slips); both engines must flag the same cases.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", VtmWarning)
+        scalar, batched = run_both(find_study(name), tmp_path, workers=2)
+    assert all(issubclass(w.category, VtmWarning) for w in caught)
     assert_same_table(scalar.table, batched.table)
+    flagged = [
+        [
+            (f["case"], [(x["kind"], x["joints"]) for x in f["flags"]])
+            for f in run.summary["flagged"]
+        ]
+        for run in (scalar, batched)
+    ]
+    assert flagged[0] == flagged[1]  # the same cases, kinds and joints (values: the table's)
 
 
 #: Relative agreement of the batched locked-case dynamics with the dense reference [-]: both
