@@ -354,3 +354,73 @@ def compute_tool_jacobian(robot: Robot, q: np.ndarray, tool_frame: str | None = 
     qs = np.asarray(q, dtype=float)
     J = [pin.computeFrameJacobian(model, data, qi, fid, _LWA)[:3] for qi in np.atleast_2d(qs)]
     return np.asarray(J[0] if qs.ndim == 1 else J)
+
+
+def body_motions(
+    chain: _Chain, qs: np.ndarray, vs: np.ndarray, joints: tuple[int, ...], gravity: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Jacobians, velocities and bias accelerations of some joints' bodies, local frames.
+
+    Spatial vectors are Pinocchio's (linear, angular), each body's in its joint's frame.
+    Joint k's motion subspace in the world at the world's origin is (o_k x w_k, w_k) for a
+    revolute joint (w_k its axis in the world, o_k its origin; :func:`_numpy_placements`), (w_k,
+    0) for a prismatic one. From the root, with V_0 = 0 and C_0 = -g (the bias acceleration
+    RNEA starts from, gravity included): V_k = V_parent + S_k v_k and C_k = C_parent + V_k x
+    (S_k v_k) (k's subspace moves with its body). A joint j's body Jacobian has the columns S_k
+    of the joints k that carry it, and V_j = J_j v; all three are then expressed in joint j's
+    frame (Pinocchio's ``oMi[j].actInv``): Pinocchio's ``getJointJacobian(..., LOCAL)``,
+    ``data.v[j]`` and ``data.a_gf[j]`` at zero acceleration, to round-off.
+
+    Args:
+        chain: The model's joints (:func:`_chain`).
+        qs: Configurations [rad or m], shape (B, nq).
+        vs: Rates [rad/s or m/s], shape (B, nv).
+        joints: The joints whose bodies are asked for.
+        gravity: The model's gravity as a spatial acceleration [m/s^2], shape (6,).
+
+    Returns:
+        ``(J, V, C)``: shapes (B, len(joints), 6, nv), (B, len(joints), 6) [m/s, rad/s] and
+        (B, len(joints), 6) [m/s^2, rad/s^2].
+    """
+    R, p = _numpy_placements(chain, qs)
+    count, njoints = len(qs), len(chain.parents)
+    axes = np.einsum("bjik,jk->bji", R, chain.axes)  # every joint's axis in the world
+    S = np.zeros((count, njoints, 6))
+    turns = np.array(chain.revolute)
+    S[:, turns, :3] = cross(p[:, turns], axes[:, turns])
+    S[:, turns, 3:] = axes[:, turns]
+    S[:, ~turns, :3] = axes[:, ~turns]
+    S[:, 0] = 0.0  # the universe
+    index = np.array(chain.index)
+    Sv = S * vs[:, index, None]
+    V = np.zeros((count, njoints, 6))
+    for k in range(1, njoints):
+        V[:, k] = V[:, chain.parents[k]] + Sv[:, k]
+    bias = _motion_cross(V, Sv)
+    C = np.empty((count, njoints, 6))
+    C[:, 0] = -np.asarray(gravity, dtype=float)
+    for k in range(1, njoints):
+        C[:, k] = C[:, chain.parents[k]] + bias[:, k]
+    J = np.zeros((count, len(joints), 6, vs.shape[1]))
+    for i, j in enumerate(joints):
+        k = j
+        while k > 0:
+            J[:, i, :, index[k]] = S[:, k]
+            k = chain.parents[k]
+    picked = list(joints)
+    stacked = np.concatenate([J.swapaxes(-1, -2), V[:, picked, None], C[:, picked, None]], axis=2)
+    angular = stacked[..., 3:]  # (B, D, nv + 2, 3): the columns, then V and C
+    linear = stacked[..., :3] + cross(angular, p[:, picked, None])  # at each joint's origin
+    Rj = R[:, picked]  # world to local axes: R^T x
+    local = np.concatenate(
+        [np.einsum("bdji,bdkj->bdki", Rj, linear), np.einsum("bdji,bdkj->bdki", Rj, angular)],
+        axis=-1,
+    )
+    nv = vs.shape[1]
+    return local[:, :, :nv].swapaxes(-1, -2), local[:, :, nv], local[:, :, nv + 1]
+
+
+def _motion_cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Spatial motion cross products a x b along the last axis (linear, angular)."""
+    linear = cross(a[..., 3:], b[..., :3]) + cross(a[..., :3], b[..., 3:])
+    return np.concatenate([linear, cross(a[..., 3:], b[..., 3:])], axis=-1)
