@@ -14,7 +14,7 @@ import pinocchio as pin
 import yaml
 
 import vtm_pin as vp
-from vtm_pin.core.batch import _Dynamics, batch_key, model_key, run_many
+from vtm_pin.core.batch import _base_model, _Dynamics, batch_key, model_key, run_many
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.physics.payload import Payload, attach_payload
 from vtm_pin.scene.scenario import SCENARIOS_DIR
@@ -119,3 +119,12 @@ def test_runs_with_drawn_payloads_are_batched_and_agree_with_the_scalar_engine()
         assert np.abs(times).max() <= 1e-10
         np.testing.assert_allclose(other.q[-1], one.q[-1], rtol=0, atol=1e-8)
         np.testing.assert_allclose(other.v[-1], one.v[-1], rtol=0, atol=1e-8)
+
+
+def test_a_batchs_model_is_the_one_most_of_its_runs_have() -> None:
+    """Runs of the most common model cost nothing more: it is the batch's (the first in a tie)."""
+    robot = vp.load_robot("ur10")
+    light = attach_payload(robot, Payload(1.0, (0.0, 0.0, 0.05))).model
+    heavy = [attach_payload(robot, Payload(8.0, (0.0, 0.0, 0.05))).model for _ in range(2)]
+    assert _base_model([light, *heavy]) is heavy[0]
+    assert _base_model([light, heavy[0]]) is light

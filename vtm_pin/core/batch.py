@@ -15,9 +15,9 @@ those with.
 models have the same joints, placements, parents, armature and gravity, whatever their bodies'
 inertias: a payload drawn per case (merged into one joint's body by
 :func:`~vtm_pin.physics.payload.attach_payload`) gives every case its own model, and they still
-share a batch. The batch's Pinocchio model is its first run's; every other run carries the
-differences dI_j of its bodies' spatial inertias from it (in practice the payload's joint
-only), whose generalised forces are added exactly (see :class:`_Dynamics`):
+share a batch. The batch's Pinocchio model is the one most of its runs have; every other run
+carries the differences dI_j of its bodies' spatial inertias from it (in practice the
+payload's joint only), whose generalised forces are added exactly (see :class:`_Dynamics`):
 
 .. math:: M \mathrel{+}= J_j^T\, dI_j\, J_j, \qquad
           b \mathrel{+}= J_j^T (dI_j\, c_j + v_j \times^* dI_j\, v_j),
@@ -49,6 +49,7 @@ A run that needs anything else (see :func:`fallback_reason`) is run by the scala
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import math
@@ -297,11 +298,11 @@ class _Dynamics:
         assert self.chain is not None
         J, V, C = body_motions(self.chain, q, v, self.joints, self.gravity)
         dI = self.delta[lanes]  # (B, D, 6, 6)
-        dIJ = dI @ J
-        M = np.einsum("bdki,bdkj->bij", J, dIJ)
-        h = np.einsum("bdij,bdj->bdi", dI, V)  # the bodies' extra momenta
-        force = np.einsum("bdij,bdj->bdi", dI, C) + _force_cross(V, h)
-        return M, np.einsum("bdki,bdk->bi", J, force)
+        JT = J.swapaxes(-1, -2)
+        h = (dI @ V[..., None])[..., 0]  # the bodies' extra momenta
+        force = (dI @ C[..., None])[..., 0] + _force_cross(V, h)
+        M = (JT @ (dI @ J)).sum(axis=1)
+        return M, (JT @ force[..., None])[..., 0].sum(axis=1)
 
 
 def _force_cross(v: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -1188,7 +1189,7 @@ def run_many(
             for i in indices
         ]
         models = [problems[i].robot.model for i in indices]
-        batch = BatchEngine(models[0], integrator, threads, models)  # type: ignore[arg-type]
+        batch = BatchEngine(_base_model(models), integrator, threads, models)  # type: ignore[arg-type]
         clock = _Clock(batch, started)
         _run_batch(batch, runs, problems, reasons, on_done, clock)
         parts = clock.parts_now()
@@ -1238,6 +1239,16 @@ def _groups(
             for index in indices:
                 reasons[index] = FEW_LANES.format(min_lanes=min_lanes)
     return groups
+
+
+def _base_model(models: Sequence[pin.Model]) -> pin.Model:
+    """The batch's model: the one most of its runs have (they cost nothing more).
+
+    In a tie, the first of those models in the order of the runs.
+    """
+    keys = [model_key(model) for model in models]
+    counts = collections.Counter(keys)
+    return models[keys.index(max(counts, key=counts.__getitem__))]
 
 
 def _run_batch(
