@@ -14,7 +14,16 @@ import pinocchio as pin
 import yaml
 
 import vtm_pin as vp
-from vtm_pin.core.batch import _base_model, _Dynamics, batch_key, model_key, run_many
+from vtm_pin.core.batch import (
+    FEW_LANES,
+    MIN_LANES,
+    _base_model,
+    _Dynamics,
+    _groups,
+    batch_key,
+    model_key,
+    run_many,
+)
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.physics.payload import Payload, attach_payload
 from vtm_pin.scene.scenario import SCENARIOS_DIR
@@ -128,3 +137,24 @@ def test_a_batchs_model_is_the_one_most_of_its_runs_have() -> None:
     heavy = [attach_payload(robot, Payload(8.0, (0.0, 0.0, 0.05))).model for _ in range(2)]
     assert _base_model([light, *heavy]) is heavy[0]
     assert _base_model([light, heavy[0]]) is light
+
+
+def test_a_model_with_min_lanes_runs_keeps_its_own_batch_and_the_rest_are_pooled() -> None:
+    """MIN_LANES runs of one payload class are a batch of their own (ABA: their lanes cost
+    least); the runs of three other payloads, too few each, are pooled in one batch."""
+    scenario = vp.load_scenario(SCENARIOS_DIR / "ur10_annex_b.yaml")
+    rng = np.random.default_rng(3)
+    others = [
+        dataclasses.replace(scenario.problem, robot=attach_payload(scenario.robot, _payload(rng)))
+        for _ in range(3)
+    ]
+    problems = [scenario.problem] * MIN_LANES + others
+    reasons: list[str | None] = [None] * len(problems)
+    groups = _groups(problems, [scenario.integrator] * len(problems), reasons, min_lanes=1)
+    assert sorted(groups.values()) == [
+        list(range(MIN_LANES)),
+        list(range(MIN_LANES, MIN_LANES + 3)),
+    ]
+    assert reasons == [None] * len(problems)
+    _groups(problems, [scenario.integrator] * len(problems), reasons, min_lanes=4)
+    assert reasons[-3:] == [FEW_LANES.format(min_lanes=4)] * 3 and reasons[0] is None

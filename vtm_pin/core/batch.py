@@ -11,13 +11,15 @@ dynamics of every run of a batch in at most three batched calls:
 ``pinocchio.abaInParallel`` for the runs without locks, ``pinocchio.rneaInParallel`` twice for
 those with.
 
-**What batches together** (:func:`batch_key`): runs with the same integrator settings whose
-models have the same joints, placements, parents, armature and gravity, whatever their bodies'
-inertias: a payload drawn per case (merged into one joint's body by
-:func:`~vtm_pin.physics.payload.attach_payload`) gives every case its own model, and they still
-share a batch. The batch's Pinocchio model is the one most of its runs have; every other run
-carries the differences dI_j of its bodies' spatial inertias from it (in practice the
-payload's joint only), whose generalised forces are added exactly (see :class:`_Dynamics`):
+**What batches together** (:func:`_groups`): runs with the same integrator settings and the
+same model (:func:`model_key`), when that model has at least :data:`MIN_LANES` runs; the runs
+of the other models are pooled when their models have the same joints, placements, parents,
+armature and gravity, whatever their bodies' inertias (:func:`batch_key`). A payload drawn per
+case (merged into one joint's body by :func:`~vtm_pin.physics.payload.attach_payload`) gives
+every case its own model, and they still share a batch. A pooled batch's Pinocchio model is
+the one most of its runs have; every other run carries the differences dI_j of its bodies'
+spatial inertias from it (in practice the payload's joint only), whose generalised forces are
+added exactly (see :class:`_Dynamics`):
 
 .. math:: M \mathrel{+}= J_j^T\, dI_j\, J_j, \qquad
           b \mathrel{+}= J_j^T (dI_j\, c_j + v_j \times^* dI_j\, v_j),
@@ -25,9 +27,12 @@ payload's joint only), whose generalised forces are added exactly (see :class:`_
 with J_j the body Jacobian of joint j's body, v_j its spatial velocity and c_j its spatial
 acceleration at a = 0 with gravity, computed over the lanes with NumPy
 (:func:`~vtm_pin.physics.kinematics.body_motions`). Such a run takes the columns path below
-even with no joint locked (ABA cannot take a lane's own inertias); a run whose model is the
-batch's costs nothing more. Models with a joint type that the NumPy chain does not compute batch
-with runs of the very same model only (:func:`model_key`).
+even with no joint locked (ABA cannot take a lane's own inertias): measured, its dynamics
+cost 2-7x a run's whose model is the batch's, which costs nothing more. Hence a model with
+enough runs for a batch of its own keeps one (the six payload classes of
+``studies/ur10_envelope.yaml``: pooled, the study took 13 % more CPU time). Models with a
+joint type that the NumPy chain does not compute batch with runs of the very same model only
+(:func:`model_key`).
 
 A run whose phase has joints locked is not given a reduced model (that would be one model per
 run and per lock angle). Its free accelerations come from the full model instead: with L the
@@ -1141,10 +1146,10 @@ def run_many(
     """Run many problems; the batched engine takes those it can (see :func:`fallback_reason`).
 
     Runs whose models differ at most in their bodies' inertias (:func:`batch_key`) and that
-    have the same integrator settings advance together. A run's ``wall_time`` is its share of
-    its batch's time.
-    Groups of fewer than ``min_lanes`` runs go to the scalar engine (reason
-    :data:`FEW_LANES`): a batch of a few lanes is slower than the scalar engine.
+    have the same integrator settings advance together (a model with at least
+    :data:`MIN_LANES` runs in a batch of its own: :func:`_groups`). A run's ``wall_time`` is
+    its share of its batch's time. Groups of fewer than ``min_lanes`` runs go to the scalar
+    engine (reason :data:`FEW_LANES`): a batch of a few lanes is slower than the scalar engine.
 
     Args:
         problems: The runs.
@@ -1224,16 +1229,27 @@ def _groups(
     reasons: list[str | None],
     min_lanes: int,
 ) -> dict[tuple[bytes, object], list[int]]:
-    """The batches: indices of runs of one :func:`batch_key` and integrator, at least ``min_lanes``.
+    """The batches: indices of runs of one integrator, at least ``min_lanes``.
 
-    The runs of smaller groups are given the reason :data:`FEW_LANES` (in ``reasons``).
+    A model with at least :data:`MIN_LANES` runs gets a batch of its own (:func:`model_key`:
+    its lanes cost least, ABA where nothing is locked); the runs of the other models are pooled
+    by :func:`batch_key` (their lanes carry their own inertias, which costs more per lane
+    than a batch of their own model but less than the scalar engine). The runs of smaller
+    groups are given the reason :data:`FEW_LANES` (in ``reasons``).
     """
-    groups: dict[tuple[bytes, object], list[int]] = {}
+    exact: dict[tuple[bytes, object], list[int]] = {}
     for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
         if reason is None:
-            key = (batch_key(problem.robot.model), integrators[index])
-            groups.setdefault(key, []).append(index)
+            exact.setdefault((model_key(problem.robot.model), integrators[index]), []).append(index)
+    groups: dict[tuple[bytes, object], list[int]] = {}
+    for (model, integrator), indices in exact.items():
+        if len(indices) >= MIN_LANES:
+            groups[b"model " + model, integrator] = indices
+        else:
+            pool = (batch_key(problems[indices[0]].robot.model), integrator)
+            groups.setdefault(pool, []).extend(indices)
     for key, indices in list(groups.items()):
+        indices.sort()
         if len(indices) < min_lanes:
             del groups[key]
             for index in indices:
