@@ -74,6 +74,11 @@ def test_lanes_with_their_own_inertias_have_their_own_models_dynamics() -> None:
     v[locked] = tau[locked] = 0.0
     lanes = rng.permutation(B)  # states in any order: each takes its lane's inertias
     a, lam = dynamics.accelerations(q, v, tau, locked, lanes)
+    plain = _Dynamics(base, threads=1)  # no lane models: every lane is the pool's
+    a_plain, lam_plain = plain.accelerations(q, v, tau, locked, lanes)
+    own = np.array([not dynamics.loaded[r] for r in lanes])
+    np.testing.assert_array_equal(a_plain[own], a[own])  # the same calls, the same bits
+    np.testing.assert_array_equal(lam_plain[own], lam[own])
     for i, r in enumerate(lanes):
         model = models[r]
         data = model.createData()

@@ -246,15 +246,16 @@ class _Dynamics:
         """
         a = np.zeros_like(q)
         lam = np.zeros_like(q)
-        loaded = np.zeros(len(q), dtype=bool) if lanes is None else self.loaded[lanes]
+        own = lanes is not None and bool(self.joints)  # some lane has its own inertias
+        loaded = self.loaded[lanes] if own else np.zeros(len(q), dtype=bool)
         held = locked.any(axis=1) | loaded
         rows = np.flatnonzero(~held)
         if rows.size:
             a[rows] = self._call(pin.abaInParallel, self.pool, q[rows], v[rows], tau[rows])
         rows = np.flatnonzero(held)
         if rows.size:
-            own = None if lanes is None else lanes[rows]
-            a[rows], lam[rows] = self._locked(q[rows], v[rows], tau[rows], locked[rows], own)
+            which = lanes[rows] if own else None  # type: ignore[index]
+            a[rows], lam[rows] = self._locked(q[rows], v[rows], tau[rows], locked[rows], which)
         return a, lam
 
     def _locked(
