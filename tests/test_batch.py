@@ -309,9 +309,10 @@ def test_small_study_agrees_and_counts_fallbacks(
 
 
 def test_payload_drawn_cases_are_not_batched_alone(tmp_path: Path) -> None:
-    """Cases drawing their payload each have their own model: none is batched alone (slower
-    than the scalar engine), each runs on the scalar engine with the reason counted, and the
-    table is the scalar engine's to 1e-8; a group of MIN_LANES runs of one model is batched."""
+    """Four cases drawing their payload (a model each, one batch key) are fewer than MIN_LANES:
+    none is batched (a batch that small is slower than the scalar engine), each runs on the
+    scalar engine with the reason counted, and the table is the scalar engine's to 1e-8; a
+    group of MIN_LANES runs of one model is batched."""
     path = tmp_path / "study.yaml"
     path.write_text(
         yaml.safe_dump(

@@ -7,6 +7,9 @@ at 5 % of their torque, which always releases and reverses (checked). The cases 
 the study runner on both engines (batches of any size: ``MIN_LANES`` lowered to 1), and every
 record must agree: status, holds, flags, and every metric within 1e-8 (the issue's
 tolerance; relative above 1, as holding torques reach 1e3 N m and work 1e2 J).
+
+Cases with a payload drawn per case (mass, centre of mass and inertia: a model per case) batch
+together too (their inertias differ, :func:`vtm_pin.core.batch.batch_key`), and agree alike.
 """
 
 from __future__ import annotations
@@ -48,12 +51,33 @@ def _base() -> dict[str, Any]:
     return dict(merge_includes(yaml.safe_load(BASE.read_text()), str(BASE), SCENARIOS_DIR))
 
 
-def _tasks(values: list[dict[str, Any]]) -> list[CaseTask]:
+def _tasks(
+    values: list[dict[str, Any]], payloads: list[dict[str, Any] | None] | None = None
+) -> list[CaseTask]:
+    """The cases on the base; with ``payloads``, each case's own payload (None: the base's)."""
     raw = _base()
-    return [
-        CaseTask(raw, str(SCENARIOS_DIR), str(BASE), "agree", Case(f"c{i}", i, v))
-        for i, v in enumerate(values)
+    bases = [
+        raw if p is None else {**raw, "payload": p} for p in (payloads or [None] * len(values))
     ]
+    return [
+        CaseTask(base, str(SCENARIOS_DIR), str(BASE), "agree", Case(f"c{i}", i, v))
+        for i, (v, base) in enumerate(zip(values, bases, strict=True))
+    ]
+
+
+def _drawn_payload(rng: np.random.Generator) -> dict[str, Any]:
+    """A payload at the tool frame: mass 0-10 kg, centre of mass within 0.1 m of the flange,
+    and (mostly) the inertia of a box of 2-20 cm sides turned at random (else a point mass)."""
+    mass = float(rng.uniform(0.0, 10.0))
+    payload: dict[str, Any] = {"mass": mass, "com": rng.uniform(-0.1, 0.1, 3).tolist()}
+    if rng.random() < 0.75:
+        x, y, z = rng.uniform(0.02, 0.2, 3) ** 2
+        box = np.diag([y + z, x + z, x + y]) * mass / 12.0
+        turn, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        inertia = turn @ box @ turn.T
+        keys = {"ixx": (0, 0), "iyy": (1, 1), "izz": (2, 2), "ixy": (0, 1), "ixz": (0, 2)}
+        payload["inertia"] = {k: float(inertia[i]) for k, i in {**keys, "iyz": (1, 2)}.items()}
+    return payload
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -107,6 +131,39 @@ def test_drawn_cases_agree_figure_by_figure(values: list[dict[str, Any]]) -> Non
     scalar = run_cases(tasks, engine="scalar")
     for one, other in zip(scalar, batched, strict=True):
         _assert_same_records(one, other)
+
+
+#: Drawn-payload cases: above MIN_LANES (16), so that the study runner's own rule batches them.
+PAYLOAD_CASES = 20
+
+
+def test_cases_with_drawn_payloads_batch_and_agree_figure_by_figure() -> None:
+    """20 UR10 cases, each with its own payload (a model per case), run as one batch of the
+    study runner (MIN_LANES as shipped) and agree with the scalar engine figure by figure.
+
+    The first two keep the base's payload (a lane equal to the batch's model, and one
+    equal to it without being it), one has none (mass 0), and one has weak brakes (slips,
+    reversals and flags with a payload's inertia)."""
+    rng = np.random.default_rng(27)
+    values = [
+        {
+            "joint": JOINTS[i % 3],
+            "speed": float(rng.uniform(0.3, 1.0)),
+            "extension": float(rng.uniform(0.3, 1.0)),
+        }
+        for i in range(PAYLOAD_CASES - 1)
+    ]
+    values.append(WEAK)
+    payloads: list[dict[str, Any] | None] = [_drawn_payload(rng) for _ in values]
+    payloads[0] = payloads[1] = None
+    payloads[2] = {"mass": 0.0, "com": [0.0, 0.0, 0.0]}
+    tasks = _tasks(values, payloads)
+    batched = run_cases(tasks, engine="batched")
+    scalar = run_cases(tasks, engine="scalar")
+    assert len({str(p) for p in payloads}) == PAYLOAD_CASES - 1  # a model per case
+    for one, other in zip(scalar, batched, strict=True):
+        _assert_same_records(one, other)
+    assert scalar[-1]["flags"]
 
 
 @settings(max_examples=200, deadline=None)

@@ -248,3 +248,31 @@ def test_the_stopping_reports_tool_path_and_speed_are_pinocchios_on_the_shipped_
     np.testing.assert_allclose(report.tcp_path, positions[i0:], rtol=0, atol=VEC_TOL)
     peak = np.max(np.linalg.norm(velocities[i0:], axis=1))
     assert report.tcp_peak_speed == pytest.approx(peak, rel=0, abs=VEC_TOL)
+
+
+@pytest.mark.parametrize("name", ["ur10", "tree"])
+def test_body_motions_are_pinocchios_local_jacobians_velocities_and_bias_accelerations(name):
+    """body_motions against Pinocchio's getJointJacobian(LOCAL), data.v and data.a_gf (RNEA at
+    a = 0, gravity included), every joint of the UR10 and of the tree of every joint type.
+
+    Tolerance VEC_TOL [-, m/s, m/s^2] relative to 1 + the largest entry: the accelerations
+    reach ~10 m/s^2 (gravity), each step a few products rounding at ~1e-16."""
+    model = robot("ur10").model if name == "ur10" else every_joint_type()[0]
+    qs, vs = random_states(model, seed=15, count=8)
+    joints = tuple(range(1, model.njoints))
+    J, V, C = kinematics.body_motions(
+        kinematics._chain(model), qs, vs, joints, model.gravity.vector
+    )
+    assert J.shape == (8, len(joints), 6, model.nv) and V.shape == C.shape == (8, len(joints), 6)
+    data = model.createData()
+    for b, (q, v) in enumerate(zip(qs, vs, strict=True)):
+        pin.rnea(model, data, q, v, np.zeros(model.nv))
+        pin.computeJointJacobians(model, data, q)
+        for i, j in enumerate(joints):
+            for ours, theirs in [
+                (J[b, i], pin.getJointJacobian(model, data, j, pin.LOCAL)),
+                (V[b, i], data.v[j].vector),
+                (C[b, i], data.a_gf[j].vector),
+            ]:
+                scale = 1.0 + np.abs(theirs).max()
+                np.testing.assert_allclose(ours, theirs, rtol=0, atol=VEC_TOL * scale)

@@ -7,9 +7,34 @@ together by the Dormand-Prince 8(5,3) step, step control and dense output of
 :mod:`vtm_pin.numerics.integrators.dormand_prince` over many lanes, the code that
 :class:`~vtm_pin.numerics.integrators.DOP853` runs as its one lane (and the same event location), so
 a run's steps are the scalar engine's up to round-off. Each Runge-Kutta stage evaluates the
-dynamics of every run of one model in at most three batched calls:
+dynamics of every run of a batch in at most three batched calls:
 ``pinocchio.abaInParallel`` for the runs without locks, ``pinocchio.rneaInParallel`` twice for
 those with.
+
+**What batches together** (:func:`_groups`): runs with the same integrator settings and the
+same model (:func:`model_key`), when that model has at least :data:`MIN_LANES` runs; the runs
+of the other models are pooled when their models have the same joints, placements, parents,
+armature and gravity, whatever their bodies' inertias (:func:`batch_key`). A payload drawn per
+case (merged into one joint's body by :func:`~vtm_pin.physics.payload.attach_payload`) gives
+every case its own model, and they still share a batch. A pooled batch's Pinocchio model is
+the one most of its runs have; every other run carries the differences dI_j of its bodies'
+spatial inertias from it (in practice the payload's joint only), whose generalised forces are
+added exactly (see :class:`_Dynamics`):
+
+.. math:: M \mathrel{+}= J_j^T\, dI_j\, J_j, \qquad
+          b \mathrel{+}= J_j^T (dI_j\, c_j + v_j \times^* dI_j\, v_j),
+
+with J_j the body Jacobian of joint j's body, v_j its spatial velocity and c_j its spatial
+acceleration at a = 0 with gravity, computed over the lanes with NumPy
+(:func:`~vtm_pin.physics.kinematics.body_motions`). Such a run takes the columns path below
+even with no joint locked (ABA cannot take a lane's own inertias): measured (UR10, 300
+lanes, a shared machine), its dynamics cost ~15 us a lane against ABA's ~2 us with no joint
+locked, ~10-12 against ~4-8 us with locks (the inertia terms ~4.5 us of it), while a run
+whose model is the batch's costs nothing more. Hence a model with
+enough runs for a batch of its own keeps one (the six payload classes of
+``studies/ur10_envelope.yaml``: pooled, the study took 13 % more CPU time). Models with a
+joint type that the NumPy chain does not compute batch with runs of the very same model only
+(:func:`model_key`).
 
 A run whose phase has joints locked is not given a reduced model (that would be one model per
 run and per lock angle). Its free accelerations come from the full model instead: with L the
@@ -31,6 +56,7 @@ A run that needs anything else (see :func:`fallback_reason`) is run by the scala
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import math
@@ -50,6 +76,7 @@ from ..numerics.transitions.recursive import weightless
 from ..physics.brakes import ROUNDOFF, BrakeMode, StateEventKind
 from ..physics.drives import short_circuit_torque
 from ..physics.friction import Coulomb, Viscous
+from ..physics.kinematics import _Chain, _chain, body_motions, cross
 from .phase import WORKS
 from .problem import Problem
 from .results import SimulationResult
@@ -62,7 +89,8 @@ ENGINES = ("batched", "scalar")
 #: n = 1, 1.4-1.8x at n = 4-12, 1.1x at 16, 0.95x at 24 and 0.6x at 64 (0.95x at 16 and
 #: 0.75x at 64 on a quieter one).
 MIN_LANES = 16
-#: Why a run whose model too few runs of the batch share went to the scalar engine.
+#: Why a run whose model too few runs of the batch share went to the scalar engine (models that
+#: differ in their bodies' inertias only count as one: :func:`batch_key`).
 FEW_LANES = "fewer than {min_lanes} runs of its model in the batch (the scalar engine is faster)"
 #: Where a batch's wall time goes: the Pinocchio calls with the small solves of locked runs,
 #: the runs' hybrid loops (brake decisions, locks, traces), event location on the dense
@@ -100,8 +128,14 @@ def fallback_reason(problem: Problem, integrator: object) -> str | None:
     return None
 
 
-def model_key(model: pin.Model) -> bytes:
-    """Bytes equal for two models with the same dynamics (inertias, placements, armature)."""
+def model_key(model: pin.Model, inertias: bool = True) -> bytes:
+    """Bytes equal for two models with the same dynamics (inertias, placements, armature).
+
+    Args:
+        model: The model.
+        inertias: Whether the bodies' inertias are in it; without them, the bytes are equal
+            for models that differ in their bodies' inertias only (see :func:`batch_key`).
+    """
     parts = [
         np.asarray(model.gravity.vector),
         np.asarray(model.armature),
@@ -112,28 +146,79 @@ def model_key(model: pin.Model) -> bytes:
     ):
         parts.append(np.array([joint.idx_v, joint.nv], dtype=float))
         parts.append(placement.homogeneous.ravel())
-        parts.append(inertia.toDynamicParameters())
+        if joint.shortname().endswith("Unaligned"):  # its axis: not in str(joint)
+            parts.append(np.asarray(joint.extract().axis, dtype=float))
+        if inertias:
+            parts.append(inertia.toDynamicParameters())
     return b"".join(np.ascontiguousarray(p, dtype=float).tobytes() for p in parts) + b"".join(
         str(joint).encode() for joint in model.joints
     )
 
 
+def batch_key(model: pin.Model) -> bytes:
+    """Bytes equal for the models of runs that may share a batch.
+
+    Models that differ only in their bodies' inertias (a payload's) share one, when their
+    joints are all of the types the NumPy chain computes
+    (:func:`~vtm_pin.physics.kinematics.body_motions`): a lane then carries its inertias'
+    differences from the batch's model (:class:`_Dynamics`). Other models batch with their
+    equals only (:func:`model_key`).
+    """
+    if _chain(model) is None:
+        return b"model " + model_key(model)
+    return b"joints " + model_key(model, inertias=False)
+
+
 class _Dynamics:
     """Batched dynamics of one model: ABA, or with locks M_ff a_f = tau_f - b_f; holding torques.
 
+    Lanes may carry their own bodies' inertias (``models``): lane r's model is the pool's with
+    joint j's spatial inertia I_j + dI_rj. With J_j the body Jacobian of joint j's body, v_j
+    its spatial velocity and c_j its spatial acceleration at a = 0 (gravity included, as RNEA
+    has it), dI_rj adds J_j^T (dI (J_j a + c_j) + v_j x* dI v_j) to the generalised forces:
+    J_j^T dI J_j to M and J_j^T (dI c_j + v_j x* dI v_j) to b. Such a lane (with a nonzero
+    dI) takes the columns path, locks or not (ABA cannot take a lane's own inertias); a lane
+    whose model is the pool's costs nothing more.
+
     Args:
-        model: The full model (armature included).
+        model: The full model (armature included): the pool's.
         threads: Threads of Pinocchio's parallel algorithms.
+        models: Each lane's model, which may differ from ``model`` in its bodies' inertias
+            only (:func:`batch_key`); None if every lane's is ``model``.
     """
 
-    def __init__(self, model: pin.Model, threads: int) -> None:
+    def __init__(
+        self, model: pin.Model, threads: int, models: Sequence[pin.Model] | None = None
+    ) -> None:
         self.n = model.nv
         self.threads = threads
         self.pool = pin.ModelPool(model, threads)
         self.weightless = pin.ModelPool(weightless(model), threads)
+        self.gravity = np.array(model.gravity.vector)
+        #: The joints whose bodies' inertias differ in some lane, and per lane the differences
+        #: (lane, joint, 6, 6) [kg, kg m, kg m^2]; lanes with one are ``loaded``.
+        self.joints: tuple[int, ...] = ()
+        self.delta = np.zeros((0, 0, 6, 6))
+        self.loaded = np.zeros(0 if models is None else len(models), dtype=bool)
+        self.chain: _Chain | None = None
+        if models is not None:
+            self._inertias(model, models)
         #: Batched Pinocchio calls made, and the states they evaluated.
         self.calls = 0
         self.states = 0
+
+    def _inertias(self, model: pin.Model, models: Sequence[pin.Model]) -> None:
+        """The lanes' inertia differences from ``model`` (see the class docstring)."""
+        base = np.array([inertia.matrix() for inertia in model.inertias])
+        delta = np.array([[inertia.matrix() for inertia in m.inertias] for m in models]) - base
+        differs = np.flatnonzero(delta.any(axis=(0, 2, 3)))
+        if differs.size == 0:
+            return
+        self.chain = _chain(model)
+        assert self.chain is not None, "batch_key lets no such model differ in its inertias"
+        self.joints = tuple(int(j) for j in differs)
+        self.delta = delta[:, differs]
+        self.loaded = np.asarray(self.delta.any(axis=(1, 2, 3)))
 
     def _call(
         self, algorithm: object, pool: pin.ModelPool, q: np.ndarray, v: np.ndarray, x: np.ndarray
@@ -145,7 +230,12 @@ class _Dynamics:
         return np.asarray(out).reshape(self.n, len(q)).T
 
     def accelerations(
-        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, locked: np.ndarray
+        self,
+        q: np.ndarray,
+        v: np.ndarray,
+        tau: np.ndarray,
+        locked: np.ndarray,
+        lanes: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Accelerations [rad/s^2] (0 at locked joints) and holding torques [N m] (0 at free).
 
@@ -154,22 +244,34 @@ class _Dynamics:
             v: Rates, shape (B, n), exactly 0 at locked joints.
             tau: Applied torques, shape (B, n), 0 at locked joints.
             locked: Lock masks, shape (B, n).
+            lanes: Each state's lane (for its inertias); None: the pool's model for all.
         """
         a = np.zeros_like(q)
         lam = np.zeros_like(q)
-        held = locked.any(axis=1)
+        own = lanes is not None and bool(self.joints)  # some lane has its own inertias
+        loaded = self.loaded[lanes] if own else np.zeros(len(q), dtype=bool)
+        held = locked.any(axis=1) | loaded
         rows = np.flatnonzero(~held)
         if rows.size:
             a[rows] = self._call(pin.abaInParallel, self.pool, q[rows], v[rows], tau[rows])
         rows = np.flatnonzero(held)
         if rows.size:
-            a[rows], lam[rows] = self._locked(q[rows], v[rows], tau[rows], locked[rows])
+            which = lanes[rows] if own else None  # type: ignore[index]
+            a[rows], lam[rows] = self._locked(q[rows], v[rows], tau[rows], locked[rows], which)
         return a, lam
 
     def _locked(
-        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, locked: np.ndarray
+        self,
+        q: np.ndarray,
+        v: np.ndarray,
+        tau: np.ndarray,
+        locked: np.ndarray,
+        lanes: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`accelerations` of states with locks, from M's free columns and b by RNEA."""
+        """:meth:`accelerations` of states with locks, from M's free columns and b by RNEA.
+
+        States of lanes with their own inertias (``lanes``) get their terms added to both.
+        """
         n = self.n
         free = ~locked
         b = self._call(pin.rneaInParallel, self.pool, q, v, np.zeros_like(q))
@@ -180,6 +282,12 @@ class _Dynamics:
         columns[lane, :, joint] = self._call(
             pin.rneaInParallel, self.weightless, q[lane], unit * 0.0, unit
         )
+        if lanes is not None:
+            rows = np.flatnonzero(self.loaded[lanes])
+            if rows.size:  # M's locked columns too: they meet a_L = 0 only
+                extra_M, extra_b = self._inertia_terms(q[rows], v[rows], lanes[rows])
+                columns[rows] += extra_M
+                b[rows] += extra_b
         both = free[:, :, None] & free[:, None, :]
         system = np.where(both, columns, 0.0) + locked[:, :, None] * np.eye(n)
         a = _solve_each(system, np.where(free, tau - b, 0.0))
@@ -187,6 +295,29 @@ class _Dynamics:
         lam = np.einsum("rij,rj->ri", columns, a) + b - tau
         lam[free] = 0.0
         return a, lam
+
+    def _inertia_terms(
+        self, q: np.ndarray, v: np.ndarray, lanes: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """What the lanes' inertia differences add to M, shape (B, n, n), and b, shape (B, n).
+
+        Per joint j: J^T dI J [kg m^2] and J^T (dI c + v x* dI v) [N m] (the class docstring).
+        """
+        assert self.chain is not None
+        J, V, C = body_motions(self.chain, q, v, self.joints, self.gravity)
+        dI = self.delta[lanes]  # (B, D, 6, 6)
+        JT = J.swapaxes(-1, -2)
+        h = (dI @ V[..., None])[..., 0]  # the bodies' extra momenta
+        force = (dI @ C[..., None])[..., 0] + _force_cross(V, h)
+        M = (JT @ (dI @ J)).sum(axis=1)
+        return M, (JT @ force[..., None])[..., 0].sum(axis=1)
+
+
+def _force_cross(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Spatial cross products v x* f along the last axis (linear, angular; motion v, force f)."""
+    linear = cross(v[..., 3:], f[..., :3])
+    angular = cross(v[..., 3:], f[..., 3:]) + cross(v[..., :3], f[..., :3])
+    return np.concatenate([linear, angular], axis=-1)
 
 
 def _solve_each(A: np.ndarray, rhs: np.ndarray) -> np.ndarray:
@@ -287,16 +418,25 @@ class _Run:
 
 
 class BatchEngine:
-    """Runs of one model stepped together (see the module docstring).
+    """Runs of one model (up to its bodies' inertias) stepped together (see the module docstring).
 
     Args:
-        model: The runs' full model (all runs share its dynamics: :func:`model_key`).
+        model: The batch's full model (the runs' models equal it up to their bodies' inertias:
+            :func:`batch_key`).
         integrator: The dop853 settings every run uses.
         threads: Threads of Pinocchio's parallel algorithms.
+        models: Each run's model, in the order of the runs :meth:`run` is given, if they
+            differ from ``model`` in their bodies' inertias (:func:`batch_key`).
     """
 
-    def __init__(self, model: pin.Model, integrator: DOP853, threads: int = 1) -> None:
-        self.dynamics = _Dynamics(model, threads)
+    def __init__(
+        self,
+        model: pin.Model,
+        integrator: DOP853,
+        threads: int = 1,
+        models: Sequence[pin.Model] | None = None,
+    ) -> None:
+        self.dynamics = _Dynamics(model, threads, models)
         self.integrator = integrator
         #: Called with each run as soon as it has its outcome (see :func:`run_many`).
         self.finished: Callable[[_Run], None] | None = None
@@ -326,7 +466,7 @@ class BatchEngine:
         tau_short = short_circuit_torque(
             ratio, lanes.short_torque[rows], lanes.short_speed[rows], v
         )
-        a, lam = self.dynamics.accelerations(q, v, tau + tau_short, lanes.locked[rows])
+        a, lam = self.dynamics.accelerations(q, v, tau + tau_short, lanes.locked[rows], rows)
         out = np.zeros_like(y)
         out[:, :n] = v
         out[:, n : 2 * n] = a
@@ -1008,10 +1148,11 @@ def run_many(
 ) -> BatchOutcome:
     """Run many problems; the batched engine takes those it can (see :func:`fallback_reason`).
 
-    Runs whose models have the same dynamics (:func:`model_key`) and the same integrator
-    settings advance together. A run's ``wall_time`` is its share of its batch's time.
-    Groups of fewer than ``min_lanes`` runs go to the scalar engine (reason
-    :data:`FEW_LANES`): a batch of a few lanes is slower than the scalar engine.
+    Runs whose models differ at most in their bodies' inertias (:func:`batch_key`) and that
+    have the same integrator settings advance together (a model with at least
+    :data:`MIN_LANES` runs in a batch of its own: :func:`_groups`). A run's ``wall_time`` is
+    its share of its batch's time. Groups of fewer than ``min_lanes`` runs go to the scalar
+    engine (reason :data:`FEW_LANES`): a batch of a few lanes is slower than the scalar engine.
 
     Args:
         problems: The runs.
@@ -1055,7 +1196,8 @@ def run_many(
             _Run(i, problems[i], integrator, transition)  # type: ignore[arg-type]
             for i in indices
         ]
-        batch = BatchEngine(problems[indices[0]].robot.model, integrator, threads)  # type: ignore[arg-type]
+        models = [problems[i].robot.model for i in indices]
+        batch = BatchEngine(_base_model(models), integrator, threads, models)  # type: ignore[arg-type]
         clock = _Clock(batch, started)
         _run_batch(batch, runs, problems, reasons, on_done, clock)
         parts = clock.parts_now()
@@ -1090,21 +1232,42 @@ def _groups(
     reasons: list[str | None],
     min_lanes: int,
 ) -> dict[tuple[bytes, object], list[int]]:
-    """The batches: indices of the runs of one model and integrator, at least ``min_lanes``.
+    """The batches: indices of runs of one integrator, at least ``min_lanes``.
 
-    The runs of smaller groups are given the reason :data:`FEW_LANES` (in ``reasons``).
+    A model with at least :data:`MIN_LANES` runs gets a batch of its own (:func:`model_key`:
+    its lanes cost least, ABA where nothing is locked); the runs of the other models are pooled
+    by :func:`batch_key` (their lanes carry their own inertias, which costs more per lane
+    than a batch of their own model but less than the scalar engine). The runs of smaller
+    groups are given the reason :data:`FEW_LANES` (in ``reasons``).
     """
-    groups: dict[tuple[bytes, object], list[int]] = {}
+    exact: dict[tuple[bytes, object], list[int]] = {}
     for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
         if reason is None:
-            key = (model_key(problem.robot.model), integrators[index])
-            groups.setdefault(key, []).append(index)
+            exact.setdefault((model_key(problem.robot.model), integrators[index]), []).append(index)
+    groups: dict[tuple[bytes, object], list[int]] = {}
+    for (model, integrator), indices in exact.items():
+        if len(indices) >= MIN_LANES:
+            groups[b"model " + model, integrator] = indices
+        else:
+            pool = (batch_key(problems[indices[0]].robot.model), integrator)
+            groups.setdefault(pool, []).extend(indices)
     for key, indices in list(groups.items()):
+        indices.sort()
         if len(indices) < min_lanes:
             del groups[key]
             for index in indices:
                 reasons[index] = FEW_LANES.format(min_lanes=min_lanes)
     return groups
+
+
+def _base_model(models: Sequence[pin.Model]) -> pin.Model:
+    """The batch's model: the one most of its runs have (they cost nothing more).
+
+    In a tie, the first of those models in the order of the runs.
+    """
+    keys = [model_key(model) for model in models]
+    counts = collections.Counter(keys)
+    return models[keys.index(max(counts, key=counts.__getitem__))]
 
 
 def _run_batch(

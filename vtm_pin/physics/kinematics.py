@@ -354,3 +354,91 @@ def compute_tool_jacobian(robot: Robot, q: np.ndarray, tool_frame: str | None = 
     qs = np.asarray(q, dtype=float)
     J = [pin.computeFrameJacobian(model, data, qi, fid, _LWA)[:3] for qi in np.atleast_2d(qs)]
     return np.asarray(J[0] if qs.ndim == 1 else J)
+
+
+def body_motions(
+    chain: _Chain, qs: np.ndarray, vs: np.ndarray, joints: tuple[int, ...], gravity: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Jacobians, velocities and bias accelerations of some joints' bodies, local frames.
+
+    Spatial vectors are Pinocchio's (linear, angular), each body's in its joint's frame.
+    Joint k's motion subspace in the world at the world's origin is (o_k x w_k, w_k) for a
+    revolute joint (w_k its axis in the world, o_k its origin; :func:`_numpy_placements`), (w_k,
+    0) for a prismatic one. From the root, with V_0 = 0 and C_0 = -g (the bias acceleration
+    RNEA starts from, gravity included): V_k = V_parent + S_k v_k and C_k = C_parent + V_k x
+    (S_k v_k) (k's subspace moves with its body). A joint j's body Jacobian has the columns S_k
+    of the joints k that carry it, and V_j = J_j v; all three are then expressed in joint j's
+    frame (Pinocchio's ``oMi[j].actInv``): Pinocchio's ``getJointJacobian(..., LOCAL)``,
+    ``data.v[j]`` and ``data.a_gf[j]`` at zero acceleration, to round-off. The arrays are
+    held component first (each component's samples contiguous: the products are then a
+    few long vector operations).
+
+    Args:
+        chain: The model's joints (:func:`_chain`).
+        qs: Configurations [rad or m], shape (B, nq).
+        vs: Rates [rad/s or m/s], shape (B, nv).
+        joints: The joints whose bodies are asked for.
+        gravity: The model's gravity as a spatial acceleration [m/s^2], shape (6,).
+
+    Returns:
+        ``(J, V, C)``: shapes (B, len(joints), 6, nv), (B, len(joints), 6) [m/s, rad/s] and
+        (B, len(joints), 6) [m/s^2, rad/s^2] (views, not contiguous).
+    """
+    R, p = _numpy_placements(chain, qs)
+    nv = vs.shape[1]
+    axes = np.einsum("bjik,jk->ijb", R, chain.axes)  # every joint's axis in the world
+    origins = np.ascontiguousarray(p.transpose(2, 1, 0))  # (3, njoints, B)
+    turns = np.array(chain.revolute)[:, None]
+    S = np.empty((6, *axes.shape[1:]))
+    S[:3] = np.where(turns, _cross_first(origins, axes), axes)
+    S[3:] = np.where(turns, axes, 0.0)
+    S[:, 0] = 0.0  # the universe
+    index = np.array(chain.index)
+    Sv = S * vs[:, index].T
+    V = _from_root(chain.parents, Sv)
+    bias = _motion_cross_first(V, Sv)
+    bias[:, 0] = -np.asarray(gravity, dtype=float)[:, None]
+    C = _from_root(chain.parents, bias)
+    picked = list(joints)
+    X = np.zeros((6, len(picked), nv + 2, len(qs)))  # the columns of J, then V and C
+    for d, j in enumerate(picked):
+        k = j
+        while k > 0:
+            X[:, d, index[k]] = S[:, k]
+            k = chain.parents[k]
+    X[:, :, nv] = V[:, picked]
+    X[:, :, nv + 1] = C[:, picked]
+    linear = X[:3] + _cross_first(X[3:], origins[:, picked, None])  # at each joint's origin
+    turn = R[:, picked].transpose(2, 3, 1, 0)[:, :, :, None]  # [k, i]: R_ki, (3, 3, D, 1, B)
+    local = np.empty_like(X)
+    for part, vector in ((slice(0, 3), linear), (slice(3, 6), X[3:])):  # R^T x
+        local[part] = turn[0] * vector[0] + turn[1] * vector[1] + turn[2] * vector[2]
+    local = local.transpose(3, 1, 0, 2)  # (B, D, 6, nv + 2)
+    return local[..., :nv], local[..., nv], local[..., nv + 1]
+
+
+def _from_root(parents: tuple[int, ...], terms: np.ndarray) -> np.ndarray:
+    """Sums of ``terms[:, k]`` over each joint k and the joints that carry it (axis 1).
+
+    A chain (each joint's parent the one before) is one cumulative sum, which adds in the
+    same order as the loop over a tree's joints.
+    """
+    if parents == (0, *range(len(parents) - 1)):
+        return np.cumsum(terms, axis=1)
+    out = terms.copy()
+    for k in range(1, len(parents)):
+        out[:, k] += out[:, parents[k]]
+    return out
+
+
+def _cross_first(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products along the first axis (of length 3), broadcast over the others."""
+    return np.stack(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
+
+
+def _motion_cross_first(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Spatial motion cross products a x b along the first axis (linear, angular)."""
+    linear = _cross_first(a[3:], b[:3]) + _cross_first(a[:3], b[3:])
+    return np.concatenate([linear, _cross_first(a[3:], b[3:])])
