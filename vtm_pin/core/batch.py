@@ -442,11 +442,10 @@ class BatchEngine:
                 lanes.viscous[b, j] = 1.0 / getattr(friction, "viscous_velocity", math.inf)
             if modes[j].sliding and not lanes.locked[b, j]:
                 lanes.sign[b, j] = modes[j].sign
-        for index, event in enumerate(phase.events):  # type: ignore[attr-defined]
-            j = event.joint
+        for index, (kind, j, direction) in enumerate(phase.event_specs):  # type: ignore[attr-defined]
             lanes.event_index[b, j] = index
-            lanes.event_dir[b, j] = event.event.direction
-            rest = event.kind is StateEventKind.ZERO_VELOCITY
+            lanes.event_dir[b, j] = direction
+            rest = kind is StateEventKind.ZERO_VELOCITY
             lanes.event_kind[b, j] = 1 if rest else 2
             if not rest:
                 assert modes[j] is BrakeMode.STUCK
@@ -715,13 +714,12 @@ class BatchEngine:
             joints = joints[fired[joints]]
         if joints.size == 0:
             return
-        events = request.phase.events
-        own = y[run.reduced]
+        phase = request.phase
+        hold = phase.holding_torque(float(t), y[run.reduced])  # what its slip events ask for
         for j in joints:
-            event = events[int(lanes.event_index[b, j])].event
-            g[j] = event.g(float(t), own)
+            g[j] = phase.machine.slip_margin(float(t), int(j), hold)  # type: ignore[union-attr]
             if fired is not None:
-                fired[j] = event.crossed(float(lanes.g_prev[b, j]), float(g[j]))
+                fired[j] = _crossed(lanes.g_prev[b, j], g[j], lanes.event_dir[b, j])
 
     def _locate(
         self, lanes: _Lanes, run: _Run, b: int, F: np.ndarray, h: float, fired: np.ndarray
