@@ -69,6 +69,11 @@ FEW_LANES = "fewer than {min_lanes} runs of its model in the batch (the scalar e
 #: output, and the rest: the vectorised step control and dense output in NumPy (and the
 #: batch's set-up: its Pinocchio model pools).
 PARTS = ("dynamics", "hybrid", "location", "stepping")
+#: What a batch still does lane by lane in Python, counted (:attr:`BatchOutcome.lane_python`):
+#: resumptions of a run's hybrid loop after an event or at an interval's end (its brake
+#: decisions, locks and next phase), state events located with the phase's own event
+#: functions, and, for contrast, rests located across the lanes.
+LANE_PYTHON = ("resumptions", "own_locations", "batched_locations")
 
 _LANES = dp.LANES
 
@@ -304,6 +309,8 @@ class BatchEngine:
         #: Wall time [s] in the dynamics (Pinocchio calls and the solves of locked runs), the runs'
         #: hybrid loops (brake decisions, locks, traces) and event location.
         self.seconds = dict.fromkeys(PARTS[:3], 0.0)
+        #: Work done lane by lane (:data:`LANE_PYTHON`).
+        self.lane_python = dict.fromkeys(LANE_PYTHON, 0)
         #: Stage buffers of a step of so many lanes.
         self._work: dict[int, dp.Stages] = {}
 
@@ -643,6 +650,7 @@ class BatchEngine:
         times: list[float] = []
         ends: dict[int, int] = {}
         rests = self._locate_rests(lanes, sub, fired, F, part.h) if fired.any() else {}
+        self.lane_python["batched_locations"] += len(rests)
         for i, b in enumerate(sub):
             run = runs[int(b)]
             t = float(lanes.t[b])
@@ -734,6 +742,7 @@ class BatchEngine:
             return dp.dense_value(Fr, tau / h, y, dp.ONE_LANE)
 
         events = [e.event for e in request.phase.events]
+        self.lane_python["own_locations"] += 1
         indices = sorted(int(lanes.event_index[b, j]) for j in np.flatnonzero(fired))
         begin = time.perf_counter()
         found = locate(events, indices, float(lanes.t[b]), y, dense, h, self.integrator.event_tol)
@@ -853,6 +862,8 @@ class BatchEngine:
         begin = time.perf_counter()
         run.advance(segment, error)
         self.seconds["hybrid"] += time.perf_counter() - begin
+        if segment is not None or error is not None:
+            self.lane_python["resumptions"] += 1
         if run.outcome is not None and self.finished is not None:
             try:
                 self.finished(run)
@@ -968,6 +979,7 @@ class BatchOutcome:
         shares: Per batched run, its share of its batch's split [s]; None if scalar.
         calls: Batched Pinocchio calls (ABA, RNEA) made.
         states: States they evaluated.
+        lane_python: What the batches did lane by lane, counted (:data:`LANE_PYTHON`).
     """
 
     results: tuple[SimulationResult | VtmError, ...]
@@ -977,6 +989,7 @@ class BatchOutcome:
     shares: tuple[dict[str, float] | None, ...]
     calls: int
     states: int
+    lane_python: dict[str, int] = dataclasses.field(default_factory=dict)
 
 
 class _Finished(BaseException):
@@ -1047,6 +1060,7 @@ def run_many(
     seconds = dict.fromkeys(PARTS, 0.0)
     shares: list[dict[str, float] | None] = [None] * len(problems)
     calls = states = 0
+    lane_python = dict.fromkeys(LANE_PYTHON, 0)
     for (_, integrator), indices in groups.items():
         started = time.perf_counter()
         runs = [
@@ -1069,6 +1083,8 @@ def run_many(
             seconds[name] += value
         calls += batch.dynamics.calls
         states += batch.dynamics.states
+        for name, count in batch.lane_python.items():
+            lane_python[name] += count
     seconds["total"] = time.perf_counter() - begin
     assert all(r is not None for r in results)
     return BatchOutcome(
@@ -1079,6 +1095,7 @@ def run_many(
         shares=tuple(shares),
         calls=calls,
         states=states,
+        lane_python=lane_python,
     )
 
 
