@@ -301,7 +301,7 @@ def test_small_study_agrees_and_counts_fallbacks(
         "fallbacks": {},
     }
     split = engines["batched_split_total"]
-    assert set(split) == {"dynamics", "hybrid", "location", "stepping"}
+    assert set(split) == {"dynamics", "hybrid", "lanes", "location", "stepping"}
     assert all(value >= 0.0 for value in split.values()) and split["dynamics"] > 0.0
     assert engines["rhs_evals_total"] > 0
     assert "batched engine" in batched.summary["executor"]

@@ -65,10 +65,13 @@ MIN_LANES = 16
 #: Why a run whose model too few runs of the batch share went to the scalar engine.
 FEW_LANES = "fewer than {min_lanes} runs of its model in the batch (the scalar engine is faster)"
 #: Where a batch's wall time goes: the Pinocchio calls with the small solves of locked runs,
-#: the runs' hybrid loops (brake decisions, locks, traces), event location on the dense
-#: output, and the rest: the vectorised step control and dense output in NumPy (and the
-#: batch's set-up: its Pinocchio model pools).
-PARTS = ("dynamics", "hybrid", "location", "stepping")
+#: the runs' hybrid loops (brake decisions, locks, traces), the lanes' own bookkeeping lane by
+#: lane (loading a run's phase into its lane, its slip margins from the phase's own events,
+#: handing it its segment), event location on the dense output, and the rest: the vectorised
+#: step control and dense output in NumPy (and the batch's set-up: its Pinocchio model pools).
+#: An engine whose brake decisions were array operations would keep only the first (less the
+#: decisions' share), the vectorised part of location, and stepping.
+PARTS = ("dynamics", "hybrid", "lanes", "location", "stepping")
 #: What a batch still does lane by lane in Python, counted (:attr:`BatchOutcome.lane_python`):
 #: resumptions of a run's hybrid loop after an event or at an interval's end (its brake
 #: decisions, locks and next phase), state events located with the phase's own event
@@ -308,7 +311,7 @@ class BatchEngine:
         self.n = model.nv
         #: Wall time [s] in the dynamics (Pinocchio calls and the solves of locked runs), the runs'
         #: hybrid loops (brake decisions, locks, traces) and event location.
-        self.seconds = dict.fromkeys(PARTS[:3], 0.0)
+        self.seconds = dict.fromkeys(PARTS[:-1], 0.0)
         #: Work done lane by lane (:data:`LANE_PYTHON`).
         self.lane_python = dict.fromkeys(LANE_PYTHON, 0)
         #: Stage buffers of a step of so many lanes.
@@ -375,7 +378,9 @@ class BatchEngine:
                         self.advance(run, segment)
                     again.append(b)
                     continue
+                begin = time.perf_counter()
                 self._load(lanes, b, run)
+                self.seconds["lanes"] += time.perf_counter() - begin
                 fresh.append(b)
             waiting = again
         if not fresh:
@@ -388,10 +393,12 @@ class BatchEngine:
         lanes.g_prev[rows] = self._g(lanes, rows, lanes.t[rows], lanes.y[rows], lam)
         for b in fresh:  # slip margins as the phase's own events have them (>= 0 after a stick)
             self._own_margins(lanes, runs[b], b, lanes.t[b], lanes.y[b], lanes.g_prev[b], None)
+        begin = time.perf_counter()
         for b in fresh:  # the interval's first sample
             runs[b].ts.append(lanes.t[b : b + 1].copy())
             runs[b].ys.append(lanes.y[b : b + 1].copy())
             runs[b].holds.append(lanes.lam[b : b + 1].copy())
+        self.seconds["lanes"] += time.perf_counter() - begin
 
     def _load(self, lanes: _Lanes, b: int, run: _Run) -> None:
         """Write run ``b``'s request into its lane."""
@@ -722,12 +729,14 @@ class BatchEngine:
             joints = joints[fired[joints]]
         if joints.size == 0:
             return
+        begin = time.perf_counter()
         phase = request.phase
         hold = phase.holding_torque(float(t), y[run.reduced])  # what its slip events ask for
         for j in joints:
             g[j] = phase.machine.slip_margin(float(t), int(j), hold)  # type: ignore[union-attr]
             if fired is not None:
                 fired[j] = _crossed(lanes.g_prev[b, j], g[j], lanes.event_dir[b, j])
+        self.seconds["lanes"] += time.perf_counter() - begin
 
     def _locate(
         self, lanes: _Lanes, run: _Run, b: int, F: np.ndarray, h: float, fired: np.ndarray
@@ -840,6 +849,7 @@ class BatchEngine:
 
     def _finish(self, lanes: _Lanes, run: _Run, b: int, event: int | None) -> None:
         """Hand run ``b`` its segment (reduced layout) and take its next request."""
+        begin = time.perf_counter()
         y = np.concatenate(run.ys)
         hold = np.concatenate(run.holds)
         locked = lanes.locked[b]
@@ -853,6 +863,7 @@ class BatchEngine:
             holding=hold,
         )
         run.ts, run.ys, run.holds = [], [], []
+        self.seconds["lanes"] += time.perf_counter() - begin
         self.advance(run, segment)
 
     def advance(
