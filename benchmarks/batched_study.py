@@ -6,9 +6,10 @@ command (process start, cases, table, graphs and report), the cases per second, 
 batched engine's speed-up. From the study's ``summary.json`` it splits the time: the mean
 per-case model build (scenario, payload, Annex-B pose) and report (stopping figures), and the
 batched engine's own split, summed over the workers (:data:`vtm_pin.core.batch.PARTS`: Pinocchio
-calls with the solves of locked runs, the runs' hybrid loops, event location, vectorised
-stepping). It also prints the wall time per right-hand-side evaluation of the whole command,
-against the 0.86 us per state that ``pinocchio.abaInParallel`` reaches on 2 threads here.
+calls with the solves of locked runs, the runs' hybrid loops, the lanes' own bookkeeping, event
+location, vectorised stepping). It also prints the wall time per right-hand-side evaluation of
+the whole command, against the 0.86 us per state that ``pinocchio.abaInParallel`` reaches on 2
+threads here.
 
 The default study is ``studies/ur10_envelope.yaml`` (10,000 UR10 category-0 cases); ``--cases
 N`` runs its first N samples only (the same Halton sequence). Set ``OMP_NUM_THREADS=1``.

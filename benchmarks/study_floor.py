@@ -18,7 +18,10 @@ right-hand sides and output samples, x the cheaper of the two per-state costs) i
 bound of any engine that evaluates them once each with these algorithms.
 
 It also prints each figure as a multiple of the floor (issue 27's target: a case at most 5x
-the floor).
+the floor), and what the batched engine still did lane by lane in Python per case
+(:data:`vtm_pin.core.batch.LANE_PYTHON`): resumptions of a case's hybrid loop (brake decisions,
+locks, the next phase), event locations with the phase's own functions, and rests located
+across the lanes.
 
     OMP_NUM_THREADS=1 python benchmarks/study_floor.py [--study S] [--cases N] [--target 15]
 """
@@ -78,8 +81,12 @@ def case_times(tasks: list[CaseTask]) -> dict[str, float]:
     return {p: 1e3 * statistics.fmean(r["timing"][p] for r in ok) for p in PARTS}
 
 
-def pinocchio_work(tasks: list[CaseTask]) -> tuple[float, float, int, pin.Model]:
+def pinocchio_work(
+    tasks: list[CaseTask],
+) -> tuple[float, float, int, pin.Model, dict[str, float]]:
     """Per case, the states evaluated and the batched engine's Pinocchio passes; batch size.
+
+    Also the engine's lane-by-lane work per case (:attr:`BatchOutcome.lane_python`).
 
     The states are the right-hand sides and the output samples (whose holding torques the
     table reads): an engine evaluates each at least once. The batched engine takes 1 + k RNEA
@@ -104,7 +111,8 @@ def pinocchio_work(tasks: list[CaseTask]) -> tuple[float, float, int, pin.Model]
     results = [r for r in outcome.results if isinstance(r, SimulationResult)]
     states = statistics.fmean(r.rhs_evals + len(r.t) for r in results)
     batch = max(1, outcome.states // outcome.calls)
-    return states, outcome.states / len(tasks), batch, scenarios[0].problem.robot.model
+    lanes = {name: count / len(tasks) for name, count in outcome.lane_python.items()}
+    return states, outcome.states / len(tasks), batch, scenarios[0].problem.robot.model, lanes
 
 
 def main() -> None:
@@ -122,7 +130,7 @@ def main() -> None:
         for c in study.cases()[: args.cases or batch]
     ]
     split = case_times(tasks)
-    states, passes, size, model = pinocchio_work(tasks)
+    states, passes, size, model, lanes = pinocchio_work(tasks)
     cost = per_state(model, size)
     floor = 1e-3 * states * min(cost.values())  # [ms]: us x states
     load = import_seconds()
@@ -151,6 +159,10 @@ def main() -> None:
     room = budget - floor
     need = f"{(measured - floor) / room:.1f}x" if room > 0 else "impossible (floor over budget)"
     print(f"cut needed in everything but the Pinocchio floor to meet the target: {need}")
+    print(
+        "lane by lane in Python, per case: "
+        + ", ".join(f"{name.replace('_', ' ')} {count:.2f}" for name, count in lanes.items())
+    )
 
 
 if __name__ == "__main__":

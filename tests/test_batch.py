@@ -32,6 +32,7 @@ from vtm_pin.core.batch import (
     run_many,
     simulate_many,
 )
+from vtm_pin.core.simulation import hybrid_run
 from vtm_pin.exceptions import SimulationError, VtmError, VtmWarning
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.numerics.integrators import DOP853, RK4
@@ -300,7 +301,7 @@ def test_small_study_agrees_and_counts_fallbacks(
         "fallbacks": {},
     }
     split = engines["batched_split_total"]
-    assert set(split) == {"dynamics", "hybrid", "location", "stepping"}
+    assert set(split) == {"dynamics", "hybrid", "lanes", "location", "stepping"}
     assert all(value >= 0.0 for value in split.values()) and split["dynamics"] > 0.0
     assert engines["rhs_evals_total"] > 0
     assert "batched engine" in batched.summary["executor"]
@@ -446,3 +447,34 @@ def test_a_singular_lane_is_nan_and_leaves_the_others_solved() -> None:
     x = _solve_each(A, rhs)
     assert np.array_equal(x[0], [1.0, 2.0]) and np.array_equal(x[2], [2.0, 1.0])
     assert np.isnan(x[1]).all()
+
+
+def test_the_lane_by_lane_work_is_counted_as_the_scalar_loop_does_it() -> None:
+    """``lane_python`` counts every resumption of a run's hybrid loop (one per interval it is
+    handed, as the scalar loop's requests after its first) and every state event located, by
+    the phase's own functions or across the lanes (as many as the scalar run's state events)."""
+    raw = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
+    problems = []
+    for speed in (0.4, 0.6, 0.8, 1.0):
+        raw["annex_b"]["speed"] = speed
+        scenario = vp.build_scenario(raw, source="test", base_dir=SCENARIOS_DIR, name="count")
+        problems.append(scenario.problem)
+    integrator = scenario.integrator
+    requests = events = 0
+    for problem in problems:
+        loop = hybrid_run(problem, integrator)
+        request = next(loop)
+        while True:
+            segment = request.integrate()
+            events += segment.event is not None
+            requests += 1
+            try:
+                request = loop.send(segment)
+            except StopIteration:
+                break
+    outcome = run_many(problems, [integrator] * len(problems), min_lanes=1)
+    counts = outcome.lane_python
+    assert outcome.engines == ("batched",) * len(problems)
+    assert counts["resumptions"] == requests
+    assert events > 0
+    assert counts["own_locations"] + counts["batched_locations"] == events

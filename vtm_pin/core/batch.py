@@ -93,10 +93,18 @@ MIN_LANES = 16
 #: differ in their bodies' inertias only count as one: :func:`batch_key`).
 FEW_LANES = "fewer than {min_lanes} runs of its model in the batch (the scalar engine is faster)"
 #: Where a batch's wall time goes: the Pinocchio calls with the small solves of locked runs,
-#: the runs' hybrid loops (brake decisions, locks, traces), event location on the dense
-#: output, and the rest: the vectorised step control and dense output in NumPy (and the
-#: batch's set-up: its Pinocchio model pools).
-PARTS = ("dynamics", "hybrid", "location", "stepping")
+#: the runs' hybrid loops (brake decisions, locks, traces), the lanes' own bookkeeping lane by
+#: lane (loading a run's phase into its lane, its slip margins from the phase's own events,
+#: handing it its segment), event location on the dense output, and the rest: the vectorised
+#: step control and dense output in NumPy (and the batch's set-up: its Pinocchio model pools).
+#: An engine whose brake decisions were array operations would keep only the first (less the
+#: decisions' share), the vectorised part of location, and stepping.
+PARTS = ("dynamics", "hybrid", "lanes", "location", "stepping")
+#: What a batch still does lane by lane in Python, counted (:attr:`BatchOutcome.lane_python`):
+#: resumptions of a run's hybrid loop after an event or at an interval's end (its brake
+#: decisions, locks and next phase), state events located with the phase's own event
+#: functions, and, for contrast, rests located across the lanes.
+LANE_PYTHON = ("resumptions", "own_locations", "batched_locations")
 
 _LANES = dp.LANES
 
@@ -443,7 +451,9 @@ class BatchEngine:
         self.n = model.nv
         #: Wall time [s] in the dynamics (Pinocchio calls and the solves of locked runs), the runs'
         #: hybrid loops (brake decisions, locks, traces) and event location.
-        self.seconds = dict.fromkeys(PARTS[:3], 0.0)
+        self.seconds = dict.fromkeys(PARTS[:-1], 0.0)
+        #: Work done lane by lane (:data:`LANE_PYTHON`).
+        self.lane_python = dict.fromkeys(LANE_PYTHON, 0)
         #: Stage buffers of a step of so many lanes.
         self._work: dict[int, dp.Stages] = {}
 
@@ -508,7 +518,9 @@ class BatchEngine:
                         self.advance(run, segment)
                     again.append(b)
                     continue
+                begin = time.perf_counter()
                 self._load(lanes, b, run)
+                self.seconds["lanes"] += time.perf_counter() - begin
                 fresh.append(b)
             waiting = again
         if not fresh:
@@ -521,10 +533,12 @@ class BatchEngine:
         lanes.g_prev[rows] = self._g(lanes, rows, lanes.t[rows], lanes.y[rows], lam)
         for b in fresh:  # slip margins as the phase's own events have them (>= 0 after a stick)
             self._own_margins(lanes, runs[b], b, lanes.t[b], lanes.y[b], lanes.g_prev[b], None)
+        begin = time.perf_counter()
         for b in fresh:  # the interval's first sample
             runs[b].ts.append(lanes.t[b : b + 1].copy())
             runs[b].ys.append(lanes.y[b : b + 1].copy())
             runs[b].holds.append(lanes.lam[b : b + 1].copy())
+        self.seconds["lanes"] += time.perf_counter() - begin
 
     def _load(self, lanes: _Lanes, b: int, run: _Run) -> None:
         """Write run ``b``'s request into its lane."""
@@ -582,11 +596,10 @@ class BatchEngine:
                 lanes.viscous[b, j] = 1.0 / getattr(friction, "viscous_velocity", math.inf)
             if modes[j].sliding and not lanes.locked[b, j]:
                 lanes.sign[b, j] = modes[j].sign
-        for index, event in enumerate(phase.events):  # type: ignore[attr-defined]
-            j = event.joint
+        for index, (kind, j, direction) in enumerate(phase.event_specs):  # type: ignore[attr-defined]
             lanes.event_index[b, j] = index
-            lanes.event_dir[b, j] = event.event.direction
-            rest = event.kind is StateEventKind.ZERO_VELOCITY
+            lanes.event_dir[b, j] = direction
+            rest = kind is StateEventKind.ZERO_VELOCITY
             lanes.event_kind[b, j] = 1 if rest else 2
             if not rest:
                 assert modes[j] is BrakeMode.STUCK
@@ -784,6 +797,7 @@ class BatchEngine:
         times: list[float] = []
         ends: dict[int, int] = {}
         rests = self._locate_rests(lanes, sub, fired, F, part.h) if fired.any() else {}
+        self.lane_python["batched_locations"] += len(rests)
         for i, b in enumerate(sub):
             run = runs[int(b)]
             t = float(lanes.t[b])
@@ -855,13 +869,14 @@ class BatchEngine:
             joints = joints[fired[joints]]
         if joints.size == 0:
             return
-        events = request.phase.events
-        own = y[run.reduced]
+        begin = time.perf_counter()
+        phase = request.phase
+        hold = phase.holding_torque(float(t), y[run.reduced])  # what its slip events ask for
         for j in joints:
-            event = events[int(lanes.event_index[b, j])].event
-            g[j] = event.g(float(t), own)
+            g[j] = phase.machine.slip_margin(float(t), int(j), hold)  # type: ignore[union-attr]
             if fired is not None:
-                fired[j] = event.crossed(float(lanes.g_prev[b, j]), float(g[j]))
+                fired[j] = _crossed(lanes.g_prev[b, j], g[j], lanes.event_dir[b, j])
+        self.seconds["lanes"] += time.perf_counter() - begin
 
     def _locate(
         self, lanes: _Lanes, run: _Run, b: int, F: np.ndarray, h: float, fired: np.ndarray
@@ -876,6 +891,7 @@ class BatchEngine:
             return dp.dense_value(Fr, tau / h, y, dp.ONE_LANE)
 
         events = [e.event for e in request.phase.events]
+        self.lane_python["own_locations"] += 1
         indices = sorted(int(lanes.event_index[b, j]) for j in np.flatnonzero(fired))
         begin = time.perf_counter()
         found = locate(events, indices, float(lanes.t[b]), y, dense, h, self.integrator.event_tol)
@@ -973,6 +989,7 @@ class BatchEngine:
 
     def _finish(self, lanes: _Lanes, run: _Run, b: int, event: int | None) -> None:
         """Hand run ``b`` its segment (reduced layout) and take its next request."""
+        begin = time.perf_counter()
         y = np.concatenate(run.ys)
         hold = np.concatenate(run.holds)
         locked = lanes.locked[b]
@@ -986,6 +1003,7 @@ class BatchEngine:
             holding=hold,
         )
         run.ts, run.ys, run.holds = [], [], []
+        self.seconds["lanes"] += time.perf_counter() - begin
         self.advance(run, segment)
 
     def advance(
@@ -995,6 +1013,8 @@ class BatchEngine:
         begin = time.perf_counter()
         run.advance(segment, error)
         self.seconds["hybrid"] += time.perf_counter() - begin
+        if segment is not None or error is not None:
+            self.lane_python["resumptions"] += 1
         if run.outcome is not None and self.finished is not None:
             try:
                 self.finished(run)
@@ -1110,6 +1130,7 @@ class BatchOutcome:
         shares: Per batched run, its share of its batch's split [s]; None if scalar.
         calls: Batched Pinocchio calls (ABA, RNEA) made.
         states: States they evaluated.
+        lane_python: What the batches did lane by lane, counted (:data:`LANE_PYTHON`).
     """
 
     results: tuple[SimulationResult | VtmError, ...]
@@ -1119,6 +1140,7 @@ class BatchOutcome:
     shares: tuple[dict[str, float] | None, ...]
     calls: int
     states: int
+    lane_python: dict[str, int] = dataclasses.field(default_factory=dict)
 
 
 class _Finished(BaseException):
@@ -1190,6 +1212,7 @@ def run_many(
     seconds = dict.fromkeys(PARTS, 0.0)
     shares: list[dict[str, float] | None] = [None] * len(problems)
     calls = states = 0
+    lane_python = dict.fromkeys(LANE_PYTHON, 0)
     for (_, integrator), indices in groups.items():
         started = time.perf_counter()
         runs = [
@@ -1213,6 +1236,8 @@ def run_many(
             seconds[name] += value
         calls += batch.dynamics.calls
         states += batch.dynamics.states
+        for name, count in batch.lane_python.items():
+            lane_python[name] += count
     seconds["total"] = time.perf_counter() - begin
     assert all(r is not None for r in results)
     return BatchOutcome(
@@ -1223,6 +1248,7 @@ def run_many(
         shares=tuple(shares),
         calls=calls,
         states=states,
+        lane_python=lane_python,
     )
 
 

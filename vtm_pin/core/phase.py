@@ -16,7 +16,7 @@ import pinocchio as pin
 from ..numerics.dynamics import compute_M, solve_small
 from ..numerics.integrators import Rhs
 from ..numerics.transitions import solve_saddle_point
-from ..physics.brakes import BrakeMachine, BrakeMode, BrakeStateEvent
+from ..physics.brakes import Brake, BrakeMachine, BrakeMode, BrakeStateEvent, EventSpec
 from ..physics.drives import DriveLaw, DriveOff, ShortCircuit
 from ..physics.robot import Robot
 from .holonomic import FrameConstraint, compute_kinematics, stack
@@ -105,6 +105,14 @@ class Phase:
             self.topology.free.tolist(), self.topology.locked, self.holding_torque
         )
 
+    @functools.cached_property
+    def event_specs(self) -> list[EventSpec]:
+        """What :attr:`events` watch, in their order, without their functions (first use)."""
+        machine = self.machine
+        if machine is None:
+            return []
+        return machine.event_specs(self.topology.free.tolist(), self.topology.locked)
+
     def shorted(self) -> tuple[np.ndarray, np.ndarray]:
         """Short-circuit figures per joint of the full model, motor side.
 
@@ -148,8 +156,8 @@ class Phase:
             tau_brake = np.zeros(self.k)
             ratio = self.robot.gear_ratio
             for f, j, brake in self._sliding:
-                sign = self._signs[j]
-                tau_brake[f] = -sign * brake.sliding(t - self.engaged[j], sign * v_f[f], ratio[j])
+                elapsed = t - self.engaged[j]
+                tau_brake[f] = kinetic_torque(brake, self._signs[j], elapsed, v_f[f], ratio[j])
         return tau_drive, tau_short, tau_brake
 
     def _rhs(self, t: float, y: np.ndarray) -> np.ndarray:
@@ -230,33 +238,14 @@ class Phase:
         a = np.zeros(self.robot.nv)
         if not k:
             return a
-        tau = sum(self.torques(t, y[:k], y[k : 2 * k]))
-        free = self.topology.free
+        tau: np.ndarray = sum(self.torques(t, y[:k], y[k : 2 * k]))  # type: ignore[assignment]
         if self.full:
-            M, b = self._mass_and_bias(*(qv or self.topology.merge(y[: 2 * k])))
-            M_ff = M.take(self.topology.free_block).reshape(k, k)
-            a[free] = solve_small(M_ff, tau - b[free])
-        else:
-            a[free] = pin.aba(self.topology.model, self.topology.data, y[:k], y[k : 2 * k], tau)
+            q, v = qv or self.topology.merge(y[: 2 * k])
+            topology = self.topology
+            return full_accelerations(self.robot, q, v, topology.free, topology.free_block, tau)
+        free = self.topology.free
+        a[free] = pin.aba(self.topology.model, self.topology.data, y[:k], y[k : 2 * k], tau)
         return a
-
-    def _mass_and_bias(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """M and b of the full model at (q, v), read only; kept for the last state asked.
-
-        The brakes' trial phases of one instant share the state, so each of their holding
-        torques reuses the one CRBA and RNEA.
-        """
-        memo = self.robot.cache.get("mass_and_bias", _LastState)
-        key = q.tobytes() + v.tobytes()  # exact: bytes compare faster than arrays this small
-        hit = memo.last
-        if hit is not None and hit[0] == key:
-            return hit[1], hit[2]
-        model, data = self.robot.model, self._full_data
-        M = compute_M(model, data, q)
-        b = np.array(pin.nonLinearEffects(model, data, q, v))
-        M.flags.writeable = b.flags.writeable = False
-        memo.last = (key, M, b)
-        return M, b
 
     def holding_torque(self, t: float, y: np.ndarray) -> np.ndarray:
         """Torque the locks must exert on every joint to keep the locked ones still [N m].
@@ -273,8 +262,7 @@ class Phase:
         a = self.accelerations(t, y, (q, v))
         locked = self.topology.locked_index
         if self.full:  # M a + b at the locked joints, from the terms the accelerations used
-            M, b = self._mass_and_bias(q, v)
-            tau = M[locked].dot(a) + b[locked]
+            tau = locked_torques(self.robot, q, v, locked, a)
         else:
             tau = pin.rnea(self.robot.model, self._full_data, q, v, a)[locked]
         out = np.zeros(self.robot.nv)
@@ -284,7 +272,106 @@ class Phase:
 
 
 class _LastState:
-    """The last (q and v bytes, M, b) of :meth:`Phase._mass_and_bias` (replaced whole)."""
+    """The last (q and v bytes, M, b) of :func:`mass_and_bias` (replaced whole)."""
 
     def __init__(self) -> None:
         self.last: tuple[bytes, np.ndarray, np.ndarray] | None = None
+
+
+def mass_and_bias(robot: Robot, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """M and b of the full model at (q, v), read only; kept for the last state asked.
+
+    The brakes' trial lock sets of one instant share the state, so each of their holding
+    torques reuses the one CRBA and RNEA.
+    """
+    memo = robot.cache.get("mass_and_bias", _LastState)
+    key = q.tobytes() + v.tobytes()  # exact: bytes compare faster than arrays this small
+    hit = memo.last
+    if hit is not None and hit[0] == key:
+        return hit[1], hit[2]
+    model, data = robot.model, full_data(robot)
+    M = compute_M(model, data, q)
+    b = np.array(pin.nonLinearEffects(model, data, q, v))
+    M.flags.writeable = b.flags.writeable = False
+    memo.last = (key, M, b)
+    return M, b
+
+
+def full_accelerations(
+    robot: Robot,
+    q: np.ndarray,
+    v: np.ndarray,
+    free: np.ndarray,
+    free_block: np.ndarray,
+    tau_f: np.ndarray,
+) -> np.ndarray:
+    """Joint accelerations [rad/s^2] from M_ff a_f = tau_f - b_f of the full model, 0 if locked.
+
+    Args:
+        robot: The robot.
+        q: Configuration [rad], shape (n,).
+        v: Rates [rad/s], exactly 0 at the locked joints.
+        free: The free joints' indices, shape (k,), k >= 1.
+        free_block: Flat indices of their block of an (n, n) matrix (:class:`Topology`'s).
+        tau_f: Torques on the free joints [N m], shape (k,), k >= 1.
+    """
+    k = free.size
+    M, b = mass_and_bias(robot, q, v)
+    a = np.zeros(robot.nv)
+    a[free] = solve_small(M.take(free_block).reshape(k, k), tau_f - b[free])
+    return a
+
+
+def locked_torques(
+    robot: Robot, q: np.ndarray, v: np.ndarray, locked: np.ndarray, a: np.ndarray
+) -> np.ndarray:
+    """The locks' torques M_L a + b_L [N m] at the joints ``locked``, with ``a`` from the locks."""
+    M, b = mass_and_bias(robot, q, v)
+    return M[locked].dot(a) + b[locked]
+
+
+def kinetic_torque(brake: Brake, sign: float, elapsed: float, v: float, ratio: float) -> float:
+    """A sliding brake's torque on its joint [N m]: against ``sign`` (+1 forward, -1 back).
+
+    Args:
+        brake: The brake.
+        sign: Its sliding direction.
+        elapsed: Time since it engaged [s].
+        v: The joint's rate [rad/s].
+        ratio: The joint's gear ratio [-].
+    """
+    return -sign * brake.sliding(elapsed, sign * v, ratio)
+
+
+def undriven_torques(
+    t: float,
+    v: np.ndarray,
+    free: np.ndarray,
+    machine: BrakeMachine | None,
+    dynamic: ShortCircuit | None,
+    dynamic_on: np.ndarray,
+) -> np.ndarray:
+    """Torques on the free joints [N m] with no drive acting: shorted motors, then sliding brakes.
+
+    The sum :meth:`Phase.torques` gives such a phase (bit for bit), without building it: the
+    brakes' trial lock sets of one instant ask for it (:class:`vtm_pin.core.simulation._Hybrid`).
+
+    Args:
+        t: Time [s].
+        v: Rates of all joints [rad/s].
+        free: The free joints' indices.
+        machine: The brakes (their modes now), if any.
+        dynamic: The motors' short-circuit braking, if any.
+        dynamic_on: Per joint, whether its motor is shorted.
+    """
+    tau = np.zeros(free.size)
+    if dynamic is not None and dynamic_on[free].any():
+        tau = np.where(dynamic_on[free], dynamic.joint_torque(v)[free], 0.0)
+    if machine is not None:
+        modes, ratio = machine.modes, machine.ratio
+        for f, j in enumerate(free.tolist()):
+            mode = modes[j]
+            if mode.sliding:
+                elapsed = t - machine.engaged[j]
+                tau[f] += kinetic_torque(machine.brakes[j], mode.sign, elapsed, v[j], ratio[j])
+    return tau

@@ -39,7 +39,7 @@ from .holonomic import (
     project_initial_state,
     stack,
 )
-from .phase import WORKS, Phase
+from .phase import WORKS, Phase, full_accelerations, locked_torques, undriven_torques
 from .problem import LockEvent, Problem, check_transition
 from .results import (
     EventRecord,
@@ -48,7 +48,7 @@ from .results import (
     RowLabel,
     SimulationResult,
 )
-from .topology import Topology, full_data, reduced_model, weightless_model
+from .topology import Topology, full_data, lock_indices, reduced_model, weightless_model
 
 
 class _Hybrid:
@@ -202,11 +202,43 @@ class _Hybrid:
 
     def holding_torque(self, t: float, locked: Sequence[int]) -> np.ndarray:
         """Holding torques [N m] with ``locked`` held and the brakes' current modes."""
+        if self._undriven_full():
+            locked_index, _, free, free_block = self._indices(locked)
+            q, v, a = self._full_accelerations(t, locked_index, free, free_block)
+            out = np.zeros(self.robot.nv)
+            out[locked_index] = locked_torques(self.robot, q, v, locked_index, a)
+            return out
         trial = self.new_phase(locked)
         return trial.holding_torque(t, trial.pack(self.q, self.v, self.extras))
 
+    def _undriven_full(self) -> bool:
+        """Whether the full model's dynamics with no drive and no frame hold: the direct path.
+
+        Then the brakes' trial lock sets are answered from the full model's M and b without
+        building a trial :class:`Phase`, bit for bit as that phase would answer.
+        """
+        return not (self.reduced or self.frames or (self.drive.acts and self.drive_on.any()))
+
+    def _indices(self, locked: Sequence[int]) -> tuple[np.ndarray, ...]:
+        """The lock set's index arrays (:func:`~vtm_pin.core.topology.lock_indices`)."""
+        return lock_indices(self.robot.nv, tuple(sorted(int(i) for i in locked)))
+
+    def _full_accelerations(
+        self, t: float, locked: np.ndarray, free: np.ndarray, free_block: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q, v with 0 at ``locked``, accelerations) of the full model with ``locked`` held."""
+        v = self.v.copy()
+        v[locked] = 0.0
+        if not free.size:
+            return self.q, v, np.zeros(self.robot.nv)
+        tau = undriven_torques(t, v, free, self.machine, self.dynamic, self.dynamic_on)
+        return self.q, v, full_accelerations(self.robot, self.q, v, free, free_block, tau)
+
     def accelerations(self, t: float) -> np.ndarray:
         """Joint accelerations [rad/s^2] with the current locks and modes."""
+        if self._undriven_full():
+            locked, _, free, free_block = self._indices(self.locked)
+            return self._full_accelerations(t, locked, free, free_block)[2]
         phase = self.new_phase()
         y = phase.pack(self.q, self.v, self.extras)
         if phase.full:
@@ -376,7 +408,7 @@ def hybrid_run(
         if segment.event is not None:
             state_events += 1
             _check_chatter(state_events, t)
-            h.settle(t, due=[phase.events[segment.event].joint])
+            h.settle(t, due=[phase.event_specs[segment.event].joint])
             if t >= duration:
                 trace.add_state(t, h)
     return trace.result(

@@ -64,8 +64,17 @@ def reduced_model(
 
 
 @functools.lru_cache(maxsize=1024)
-def _indices(nv: int, locked: tuple[int, ...]) -> tuple[np.ndarray, ...]:
-    """:class:`Topology`'s index arrays of a lock set (read only)."""
+def lock_indices(nv: int, locked: tuple[int, ...]) -> tuple[np.ndarray, ...]:
+    """A lock set's index arrays (read only), as :class:`Topology` keeps them.
+
+    Args:
+        nv: Number of coordinates.
+        locked: The locked coordinates, sorted.
+
+    Returns:
+        The locked indices, the free mask, the free indices, and the flat indices of the free
+        block of an (nv, nv) matrix.
+    """
     locked_index = np.array(locked, dtype=np.intp)
     free_mask = np.ones(nv, dtype=bool)
     free_mask[locked_index] = False
@@ -97,7 +106,8 @@ class Topology:
         #: ``locked`` as an index array [-]; per coordinate, whether it is free; the free
         #: indices; the flat indices of the free block of an (nv, nv) matrix (``M.take(...)``
         #: is M_ff). Read only: shared by the topologies of one lock set.
-        self.locked_index, self.free_mask, self.free, self.free_block = _indices(nv, self.locked)
+        indices = lock_indices(nv, self.locked)
+        self.locked_index, self.free_mask, self.free, self.free_block = indices
         self.q_locked = np.asarray(q, dtype=float)[self.locked_index]
         self._k = int(self.free.size)
         self._tau = np.zeros(self._k)

@@ -18,7 +18,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum, IntEnum
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -194,6 +194,20 @@ class BrakeStateEvent:
     event: StateEvent
 
 
+class EventSpec(NamedTuple):
+    """What a brake state event of a phase watches, without its event function.
+
+    Attributes:
+        kind: ``ZERO_VELOCITY`` or ``SLIP`` (see :class:`BrakeStateEvent`).
+        joint: Index of the joint concerned.
+        direction: The crossing that fires it (:class:`StateEvent`'s direction).
+    """
+
+    kind: StateEventKind
+    joint: int
+    direction: int
+
+
 class BrakeWorld(Protocol):
     """What the brake state machine needs from the hybrid loop at one instant.
 
@@ -325,6 +339,26 @@ class BrakeMachine:
             self._release(t, world, i, float(hold[i]), limits[i])
             self._check_released(t, world, [i])
 
+    def event_specs(self, free: Sequence[int], locked: Sequence[int]) -> list[EventSpec]:
+        """What :meth:`state_events` watches, in its order: sliding joints, then stuck ones.
+
+        Args:
+            free: Free joint indices, in the order of the phase state y = (q_f, v_f, ...).
+            locked: Locked joint indices.
+        """
+        specs = []
+        for j in free:
+            mode = self.modes[j]
+            if mode.sliding:
+                # Sliding forward ends when v falls through 0; backward when it rises.
+                direction = -1 if mode is BrakeMode.FORWARD else 1
+                specs.append(EventSpec(StateEventKind.ZERO_VELOCITY, int(j), direction))
+        for j in locked:
+            brake = self.brakes.get(j)
+            if self.modes[j] is BrakeMode.STUCK and brake is not None and not brake.ideal:
+                specs.append(EventSpec(StateEventKind.SLIP, int(j), -1))
+        return specs
+
     def state_events(
         self,
         free: Sequence[int],
@@ -340,29 +374,30 @@ class BrakeMachine:
         """
         events = []
         k = len(free)
-        for f, j in enumerate(free):
-            if self.modes[j].sliding:
-                # Sliding forward ends when v falls through 0; backward when it rises.
-                direction = -1 if self.modes[j] is BrakeMode.FORWARD else 1
+        position = {int(j): f for f, j in enumerate(free)}
+        for kind, j, direction in self.event_specs(free, locked):
+            if kind is StateEventKind.ZERO_VELOCITY:
 
-                def rate(t: float, y: np.ndarray, i: int = k + f) -> float:
+                def rate(t: float, y: np.ndarray, i: int = k + position[j]) -> float:
                     return float(y[i])
 
-                kind = StateEventKind.ZERO_VELOCITY
-                events.append(BrakeStateEvent(kind, int(j), StateEvent(rate, direction)))
-        for j in locked:
-            brake = self.brakes.get(j)
-            if self.modes[j] is BrakeMode.STUCK and brake is not None and not brake.ideal:
+                events.append(BrakeStateEvent(kind, j, StateEvent(rate, direction)))
+            else:
 
                 def margin(t: float, y: np.ndarray, j: int = j) -> float:
-                    # The stick decision's own test (with its round-off), so a joint that
-                    # stuck starts with a margin >= 0 and its slip is always a crossing.
-                    hold = holding(t, y)
-                    scale = max(1.0, float(np.abs(hold).max()))
-                    return self.static(t, j) + ROUNDOFF * scale - abs(hold[j])
+                    return self.slip_margin(t, j, holding(t, y))
 
-                events.append(BrakeStateEvent(StateEventKind.SLIP, j, StateEvent(margin, -1)))
+                events.append(BrakeStateEvent(kind, j, StateEvent(margin, direction)))
         return events
+
+    def slip_margin(self, t: float, j: int, hold: np.ndarray) -> float:
+        """Stuck joint ``j``'s margin [N m] to slipping, given the holding torques ``hold``.
+
+        The stick decision's own test (with its round-off), so a joint that stuck starts with
+        a margin >= 0 and its slip is always a crossing of 0 from above.
+        """
+        scale = max(1.0, float(np.abs(hold).max()))
+        return self.static(t, j) + ROUNDOFF * scale - abs(hold[j])
 
     def _hold_or_release(
         self, t: float, world: BrakeWorld, resting: list[int], forced: set[int]
