@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 
@@ -35,6 +36,19 @@ def robot(name: str) -> Robot:
     if name not in _CACHE:
         _CACHE[name] = load_robot(name)
     return _CACHE[name]
+
+
+@pytest.fixture(autouse=True)
+def _default_sigint():
+    """Ctrl-C as at a terminal: the tests' subprocesses must not inherit an ignored SIGINT.
+
+    A test run started in the background of a non-interactive shell (``pytest &``) has SIGINT
+    ignored (POSIX), Python keeps it so and its children inherit it: ``vtm-pin study`` started
+    by a test then ignored the Ctrl-C the test sent and ran to the end (the Ctrl-C test of
+    tests/test_study_store.py failed with exit status 0 on pytest-xdist workers).
+    """
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(autouse=True)
