@@ -147,7 +147,7 @@ def random_states(model, seed, count=SAMPLES):
 def test_joint_placements_match_pinocchios_forward_kinematics(name):
     arm = robot(name)
     qs, _ = random_states(arm.model, seed=11)
-    assert kinematics._chain(arm.model) is not None  # their joints all take the NumPy path
+    assert kinematics.joint_chain(arm.model) is not None  # their joints all take the NumPy path
     R, p = joint_placements(arm, qs)
     R_ref, p_ref = pinocchio_placements(arm.model, qs)
     njoints = arm.model.njoints
@@ -205,7 +205,7 @@ def every_joint_type():
 def test_every_joint_type_vtm_pin_loads_takes_the_numpy_path_and_matches_pinocchio():
     model, kinds = every_joint_type()
     assert set(kinds) == set(kinematics._MOTIONS)  # the tree has each type the table knows
-    assert kinematics._chain(model) is not None
+    assert kinematics.joint_chain(model) is not None
     names = tuple(model.names[1:])
     tree = Robot("tree", "tree", model, names, np.ones(model.nv), tool_frame="tool")
     qs, vs = random_states(model, seed=13)
@@ -225,7 +225,7 @@ def test_a_joint_type_numpy_does_not_compute_falls_back_to_pinocchio():
     model = pin.Model()
     first = model.addJoint(0, pin.JointModelRUBZ(), pin.SE3.Identity(), "continuous")
     model.addJoint(first, pin.JointModelSpherical(), pin.SE3(np.eye(3), np.ones(3)), "ball")
-    assert kinematics._chain(model) is None
+    assert kinematics.joint_chain(model) is None
     rng = np.random.default_rng(14)
     qs = np.array([pin.randomConfiguration(model, -np.ones(6), np.ones(6)) for _ in range(40)])
     qs = np.array([pin.normalize(model, q) for q in qs + rng.normal(scale=0.1, size=qs.shape)])
@@ -261,7 +261,7 @@ def test_body_motions_are_pinocchios_local_jacobians_velocities_and_bias_acceler
     qs, vs = random_states(model, seed=15, count=8)
     joints = tuple(range(1, model.njoints))
     J, V, C = kinematics.body_motions(
-        kinematics._chain(model), qs, vs, joints, model.gravity.vector
+        kinematics.joint_chain(model), qs, vs, joints, model.gravity.vector
     )
     assert J.shape == (8, len(joints), 6, model.nv) and V.shape == C.shape == (8, len(joints), 6)
     data = model.createData()

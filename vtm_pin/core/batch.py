@@ -76,7 +76,7 @@ from ..numerics.transitions.recursive import weightless
 from ..physics.brakes import ROUNDOFF, BrakeMode, StateEventKind
 from ..physics.drives import short_circuit_torque
 from ..physics.friction import Coulomb, Viscous
-from ..physics.kinematics import _Chain, _chain, body_motions, cross
+from ..physics.kinematics import JointChain, body_motions, cross, joint_chain
 from .phase import WORKS
 from .problem import Problem
 from .results import SimulationResult
@@ -172,7 +172,7 @@ def batch_key(model: pin.Model) -> bytes:
     differences from the batch's model (:class:`_Dynamics`). Other models batch with their
     equals only (:func:`model_key`).
     """
-    if _chain(model) is None:
+    if joint_chain(model) is None:
         return b"model " + model_key(model)
     return b"joints " + model_key(model, inertias=False)
 
@@ -208,7 +208,7 @@ class _Dynamics:
         self.joints: tuple[int, ...] = ()
         self.delta = np.zeros((0, 0, 6, 6))
         self.loaded = np.zeros(0 if models is None else len(models), dtype=bool)
-        self.chain: _Chain | None = None
+        self.chain: JointChain | None = None
         if models is not None:
             self._inertias(model, models)
         #: Batched Pinocchio calls made, and the states they evaluated.
@@ -222,7 +222,7 @@ class _Dynamics:
         differs = np.flatnonzero(delta.any(axis=(0, 2, 3)))
         if differs.size == 0:
             return
-        self.chain = _chain(model)
+        self.chain = joint_chain(model)
         assert self.chain is not None, "batch_key lets no such model differ in its inertias"
         self.joints = tuple(int(j) for j in differs)
         self.delta = delta[:, differs]

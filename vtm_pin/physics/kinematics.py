@@ -56,7 +56,7 @@ _MOTIONS: dict[str, tuple[bool, np.ndarray | None]] = {
 
 
 @dataclass(frozen=True)
-class _Chain:
+class JointChain:
     """A model's joints as arrays (index 0 is the universe).
 
     Attributes:
@@ -78,7 +78,7 @@ class _Chain:
     skews: np.ndarray
 
 
-def _chain(model: pin.Model) -> _Chain | None:
+def joint_chain(model: pin.Model) -> JointChain | None:
     """The model's joints as arrays; None if a joint is of a type NumPy does not compute."""
     axes = np.zeros((model.njoints, 3))
     revolute, index = [False], [0]
@@ -95,7 +95,7 @@ def _chain(model: pin.Model) -> _Chain | None:
     x, y, z = axes.T
     zero = np.zeros_like(x)
     skews = np.stack([[zero, -z, y], [z, zero, -x], [-y, x, zero]]).transpose(2, 0, 1)
-    return _Chain(
+    return JointChain(
         parents=tuple(int(p) for p in model.parents),
         rotations=np.array([np.asarray(m.rotation) for m in placements]),
         translations=np.array([np.asarray(m.translation) for m in placements]),
@@ -106,7 +106,7 @@ def _chain(model: pin.Model) -> _Chain | None:
     )
 
 
-def _numpy_placements(chain: _Chain, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _numpy_placements(chain: JointChain, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World placements of every joint at each row of ``qs`` (see :func:`joint_placements`).
 
     Joint by joint from the root, each step as a few matrix products over all samples at once:
@@ -178,11 +178,11 @@ def kinematics_key(robot: Robot) -> tuple[Any, ...]:
     return robot.cache.get("kinematics_key", build)
 
 
-def _cached_chain(robot: Robot) -> _Chain | None:
-    """:func:`_chain` of the robot's model, kept in its cache, shared by equal kinematics."""
+def _cached_chain(robot: Robot) -> JointChain | None:
+    """:func:`joint_chain` of the robot's model, kept in its cache, shared by equal kinematics."""
 
-    def shared() -> tuple[_Chain | None]:
-        return _CHAINS.get(kinematics_key(robot), lambda: (_chain(robot.model),))
+    def shared() -> tuple[JointChain | None]:
+        return _CHAINS.get(kinematics_key(robot), lambda: (joint_chain(robot.model),))
 
     return robot.cache.get("kinematic_chain", shared)[0]
 
@@ -209,7 +209,7 @@ def joint_placements(model: pin.Model | Robot, qs: np.ndarray) -> tuple[np.ndarr
     if isinstance(model, Robot):
         chain, model = _cached_chain(model), model.model
     else:
-        chain = _chain(model)
+        chain = joint_chain(model)
     qs = np.asarray(qs, dtype=float)
     lead = qs.shape[:-1]
     flat = qs.reshape(-1, model.nq)
@@ -221,7 +221,7 @@ def joint_placements(model: pin.Model | Robot, qs: np.ndarray) -> tuple[np.ndarr
 
 
 def _frame_velocity(
-    chain: _Chain, R: np.ndarray, p: np.ndarray, joint: int, origin: np.ndarray, vs: np.ndarray
+    chain: JointChain, R: np.ndarray, p: np.ndarray, joint: int, origin: np.ndarray, vs: np.ndarray
 ) -> np.ndarray:
     """Linear velocity [m/s] of a point ``origin`` [m], shape (T, 3), carried by ``joint``.
 
@@ -357,7 +357,7 @@ def compute_tool_jacobian(robot: Robot, q: np.ndarray, tool_frame: str | None = 
 
 
 def body_motions(
-    chain: _Chain, qs: np.ndarray, vs: np.ndarray, joints: tuple[int, ...], gravity: np.ndarray
+    chain: JointChain, qs: np.ndarray, vs: np.ndarray, joints: tuple[int, ...], gravity: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Jacobians, velocities and bias accelerations of some joints' bodies, local frames.
 
@@ -374,7 +374,7 @@ def body_motions(
     few long vector operations).
 
     Args:
-        chain: The model's joints (:func:`_chain`).
+        chain: The model's joints (:func:`joint_chain`).
         qs: Configurations [rad or m], shape (B, nq).
         vs: Rates [rad/s or m/s], shape (B, nv).
         joints: The joints whose bodies are asked for.
