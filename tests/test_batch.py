@@ -450,9 +450,11 @@ def test_a_singular_lane_is_nan_and_leaves_the_others_solved() -> None:
 
 
 def test_the_lane_by_lane_work_is_counted_as_the_scalar_loop_does_it() -> None:
-    """``lane_python`` counts every resumption of a run's hybrid loop (one per interval it is
-    handed, as the scalar loop's requests after its first) and every state event located, by
-    the phase's own functions or across the lanes (as many as the scalar run's state events)."""
+    """``lane_python`` counts every interval handed to a run's hybrid loop (as many as the
+    scalar loop's requests after its first), every state event located, by the phase's own
+    functions or across the lanes (as many as the scalar run's state events), and the rests
+    settled across the lanes, which save the loop its resumptions: each one is an interval
+    handed without a resumption of its own."""
     raw = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
     problems = []
     for speed in (0.4, 0.6, 0.8, 1.0):
@@ -475,6 +477,9 @@ def test_the_lane_by_lane_work_is_counted_as_the_scalar_loop_does_it() -> None:
     outcome = run_many(problems, [integrator] * len(problems), min_lanes=1)
     counts = outcome.lane_python
     assert outcome.engines == ("batched",) * len(problems)
-    assert counts["resumptions"] == requests
+    assert counts["intervals"] == requests
     assert events > 0
     assert counts["own_locations"] + counts["batched_locations"] == events
+    assert 0 < counts["settled_rests"] <= counts["batched_locations"]
+    # Every resumption hands an interval; a settled one may share it with the next.
+    assert requests - counts["settled_rests"] <= counts["resumptions"] < requests

@@ -73,14 +73,14 @@ from ..numerics.integrators import dormand_prince as dp
 from ..numerics.integrators.dop853 import _Grid
 from ..numerics.integrators.fixed_step import locate
 from ..numerics.transitions.recursive import weightless
-from ..physics.brakes import ROUNDOFF, BrakeMode, StateEventKind
+from ..physics.brakes import REST_RATE, ROUNDOFF, BrakeMode, StateEventKind
 from ..physics.drives import short_circuit_torque
 from ..physics.friction import Coulomb, Viscous
 from ..physics.kinematics import JointChain, body_motions, cross, joint_chain
 from .phase import WORKS
 from .problem import Problem
 from .results import SimulationResult
-from .simulation import SegmentRequest, hybrid_run
+from .simulation import Reply, Rested, SegmentRequest, hybrid_run
 
 ENGINES = ("batched", "scalar")
 #: Fewest runs of one model a study gives a batch: fewer run faster on the scalar engine.
@@ -102,9 +102,18 @@ FEW_LANES = "fewer than {min_lanes} runs of its model in the batch (the scalar e
 PARTS = ("dynamics", "hybrid", "lanes", "location", "stepping")
 #: What a batch still does lane by lane in Python, counted (:attr:`BatchOutcome.lane_python`):
 #: resumptions of a run's hybrid loop after an event or at an interval's end (its brake
-#: decisions, locks and next phase), state events located with the phase's own event
-#: functions, and, for contrast, rests located across the lanes.
-LANE_PYTHON = ("resumptions", "own_locations", "batched_locations")
+#: decisions, locks and next phase; one resumption may hand it several intervals), state
+#: events located with the phase's own event functions, and, for contrast, rests located
+#: across the lanes, rests settled across the lanes (:meth:`BatchEngine._settle_rests`:
+#: handed to the loop later, without a decision of its own) and the intervals handed
+#: (as many as the scalar loop's requests).
+LANE_PYTHON = (
+    "resumptions",
+    "own_locations",
+    "batched_locations",
+    "settled_rests",
+    "intervals",
+)
 
 _LANES = dp.LANES
 
@@ -378,6 +387,7 @@ class _Lanes:
         self.breakaway = np.zeros((b, n))  # motor side static torque [N m]
         self.ramp = np.zeros((b, n))
         self.engaged = np.zeros((b, n))
+        self.braked = np.zeros((b, n), dtype=bool)  # engaged brakes
         self.event_kind = np.zeros((b, n), dtype=np.int8)  # 0 none, 1 rest, 2 slip
         self.event_dir = np.zeros((b, n))
         self.event_index = np.zeros((b, n), dtype=int)
@@ -396,7 +406,7 @@ class _Run:
     def __init__(self, index: int, problem: Problem, integrator: DOP853, transition: str) -> None:
         self.index = index
         self.transition = transition
-        self.loop: Generator[SegmentRequest, Segment, SimulationResult] = hybrid_run(
+        self.loop: Generator[SegmentRequest, Reply, SimulationResult] = hybrid_run(
             problem, integrator, transition=transition, reduced_models=False
         )
         self.request: SegmentRequest | None = None
@@ -406,9 +416,12 @@ class _Run:
         self.ys: list[np.ndarray] = []
         self.holds: list[np.ndarray] = []
         self.reduced = np.zeros(0, dtype=int)
+        #: The intervals its lane ended at rests it decided itself, not yet handed to the loop.
+        self.pieces: list[Rested] = []
+        self.output_dt: float | None = None
 
-    def advance(self, segment: Segment | None = None, error: VtmError | None = None) -> None:
-        """Send the loop its segment (or error); keep its next request or its outcome."""
+    def advance(self, segment: Reply | None = None, error: VtmError | None = None) -> None:
+        """Send the loop its segment(s) (or error); keep its next request or its outcome."""
         try:
             if error is not None:
                 self.request = self.loop.throw(error)
@@ -569,11 +582,8 @@ class BatchEngine:
         lanes.steps[b] = lanes.accepted[b] = 0
         self._load_brakes(lanes, b, phase)
         lanes.running[b] = True
-        run.grid = (
-            None
-            if request.integrator.output_dt is None  # type: ignore[attr-defined]
-            else _Grid(request.integrator.output_dt, request.t0, request.t1)  # type: ignore[attr-defined]
-        )
+        run.output_dt = request.integrator.output_dt  # type: ignore[attr-defined]
+        run.grid = None if run.output_dt is None else _Grid(run.output_dt, request.t0, request.t1)
         run.ts, run.ys, run.holds = [], [], []
 
     def _load_brakes(self, lanes: _Lanes, b: int, phase: object) -> None:
@@ -586,8 +596,10 @@ class BatchEngine:
         if machine is None:
             return
         modes, engaged = phase.modes, phase.engaged  # type: ignore[attr-defined]
+        lanes.braked[b] = False
         for j, brake in machine.brakes.items():
             lanes.engaged[b, j] = engaged.get(j, 0.0)
+            lanes.braked[b, j] = j in engaged
             if not brake.ideal:
                 friction = brake.friction
                 lanes.torque[b, j] = friction.sliding_torque
@@ -748,11 +760,13 @@ class BatchEngine:
             ],
             dtype=bool,
         )
+        going: set[int] = set()  # lanes that settled their rest and go on
         if events.any() or due.any():
-            self._dense_samples(lanes, runs, rows, step, t_new, fired, events | due)
+            going = self._dense_samples(lanes, runs, rows, step, t_new, fired, events | due)
         for b in rows[events]:
-            lanes.running[b] = False
-            finished.append(int(b))
+            if int(b) not in going:
+                lanes.running[b] = False
+                finished.append(int(b))
         go = ~events
         rows, step, t_new = rows[go], step.select(go), t_new[go]
         lanes.g_prev[rows] = g_new[go]
@@ -782,12 +796,17 @@ class BatchEngine:
         t_new: np.ndarray,
         fired: np.ndarray,
         dense: np.ndarray,
-    ) -> None:
+    ) -> set[int]:
         """Dense output of the ``dense`` lanes: event location, output times (batched).
 
         A lane whose step fired a state event gets its earliest event located on the
         step's continuous extension (as :class:`DOP853` does, with the phase's own event
         functions), its output times up to it, and the event state; its interval ends.
+        Rests located across the lanes are settled there where the lanes can
+        (:meth:`_settle_rests`).
+
+        Returns:
+            The lanes that settled their rest and go on with their next interval.
         """
         sub, fired, t_new = rows[dense], fired[dense], t_new[dense]
         lanes.evals[sub] += dp.N_EXTRA
@@ -796,6 +815,7 @@ class BatchEngine:
         owners: list[int] = []
         times: list[float] = []
         ends: dict[int, int] = {}
+        rested: dict[int, int] = {}  # the ends located across the lanes
         rests = self._locate_rests(lanes, sub, fired, F, part.h) if fired.any() else {}
         self.lane_python["batched_locations"] += len(rests)
         for i, b in enumerate(sub):
@@ -803,7 +823,10 @@ class BatchEngine:
             t = float(lanes.t[b])
             if fired[i].any():
                 try:
-                    tau, index = rests.get(i) or self._locate(
+                    found = rests.get(i)
+                    if found is None and not self._sync(lanes, run, int(b)):
+                        continue
+                    tau, index = found or self._locate(
                         lanes, run, int(b), F[i], float(part.h[i]), fired[i]
                     )
                 except Exception as exc:
@@ -814,12 +837,114 @@ class BatchEngine:
                 times.append(t + tau)
                 owners.extend([i] * (count + 1))
                 ends[int(b)] = index
+                if i in rests:
+                    rested[int(b)] = index
             else:
                 owners.extend([i] * _grid_times(run.grid, float(t_new[i]), times))
         if owners:
             self._store_samples(lanes, runs, sub, part, F, np.array(owners, dtype=int), times)
         for b, event in ends.items():
-            self._finish(lanes, runs[b], b, event)
+            if b not in rested:
+                self._finish(lanes, runs[b], b, event)
+        return self._settle_rests(lanes, runs, rested) if rested else set()
+
+    def _settle_rests(
+        self, lanes: _Lanes, runs: Sequence[_Run], rested: dict[int, int]
+    ) -> set[int]:
+        """Rests located across the lanes, settled there when the joint only sticks.
+
+        This is the brake state machine's common decision
+        (:meth:`~vtm_pin.physics.brakes.BrakeMachine.settle`) as array operations. Lane b's
+        event is sliding joint j reaching rest (``rested``: lane -> event index). If every
+        other braked free joint slides on the way its mode says (faster than ``REST_RATE``:
+        none reverses, none is at rest) and the rest falls before the interval's end, the
+        lane locks j (v_j = 0: the momentum-consistent jump is the identity) and evaluates
+        its right-hand side there. If every stuck joint's slip margin, j's included, is then
+        >= 0 (:meth:`_g`: the stick decision's own test), every brake at rest holds: j
+        sticks, and the interval is kept for the run as
+        :class:`~vtm_pin.core.simulation.Rested` (its loop records the stick when it is next
+        handed anything). A lane with a joint still sliding goes on with its next interval at
+        once; one without hands its run the rests now. Any other lane hands its run the
+        interval, whose loop settles it.
+
+        Returns:
+            The lanes that go on.
+        """
+        begin, dynamics = time.perf_counter(), self.seconds["dynamics"]
+        n = self.n
+        rows = np.array(sorted(rested), dtype=int)
+        t = np.array([runs[b].ts[-1][-1] for b in rows])
+        y = np.stack([runs[b].ys[-1][-1] for b in rows])
+        kind, index = lanes.event_kind[rows], lanes.event_index[rows]
+        joint = np.argmax((kind == 1) & (index == np.array([rested[b] for b in rows])[:, None]), 1)
+        samples = {int(b): self._samples(lanes, runs[b], b) for b in rows}
+        others = lanes.braked[rows] & ~lanes.locked[rows]
+        others[np.arange(rows.size), joint] = False
+        on = lanes.sign[rows] * y[:, n : 2 * n] > REST_RATE  # sliding on as its mode says
+        ok = ~(others & ~on).any(axis=1) & (t < lanes.t1[rows])
+        held = np.zeros(0, dtype=bool)
+        if ok.any():
+            held = self._lock_rests(lanes, rows[ok], joint[ok], t[ok], y[ok])
+        settled = rows[ok][held]
+        going = settled[(lanes.sign[settled] != 0.0).any(axis=1)]
+        for b, j in zip(settled, joint[ok][held], strict=True):
+            t_b, y_b, hold = samples[int(b)]
+            steps = int(lanes.accepted[b])  # the ended interval's (reset by the restart)
+            evals = int(lanes.evals[b])
+            runs[b].pieces.append(Rested(t_b, y_b, hold, evals, steps, int(j), lanes.lam[b].copy()))
+            runs[b].reduced = np.flatnonzero(lanes.active[b])
+        self.lane_python["settled_rests"] += settled.size
+        inner = self.seconds["dynamics"] - dynamics
+        self.seconds["lanes"] += time.perf_counter() - begin - inner
+        self._restart(lanes, runs, going)
+        for b in np.setdiff1d(settled, going):  # nothing slides on: its run decides what follows
+            self._sync(lanes, runs[b], int(b))
+        for b in np.setdiff1d(rows, settled):  # its loop settles it
+            self._hand(lanes, runs[b], int(b), samples[int(b)], rested[int(b)])
+        return {int(b) for b in going}
+
+    def _lock_rests(
+        self, lanes: _Lanes, rows: np.ndarray, joint: np.ndarray, t: np.ndarray, y: np.ndarray
+    ) -> np.ndarray:
+        """Lock each lane's arrived joint at (t, y) and test the stuck joints' margins there.
+
+        The lanes ``rows`` are left in their next phase (f, holding torques and event
+        functions at its start included); whether each holds. A lane that does not is
+        loaded afresh with its run's next request.
+        """
+        n = self.n
+        y = y.copy()
+        y[np.arange(rows.size), n + joint] = 0.0
+        lanes.locked[rows, joint] = True
+        lanes.sign[rows, joint] = lanes.short_torque[rows, joint] = 0.0
+        lanes.short_speed[rows, joint] = 1.0
+        lanes.event_kind[rows, joint], lanes.event_dir[rows, joint] = 2, -1.0
+        lanes.active[rows, joint] = lanes.active[rows, n + joint] = False
+        lanes.count[rows] -= 2
+        lanes.t[rows], lanes.y[rows] = t, y
+        lanes.fy[rows], lanes.lam[rows] = self.rhs(lanes, rows, t, y)
+        g = lanes.g_prev[rows] = self._g(lanes, rows, t, y, lanes.lam[rows])
+        held: np.ndarray = ~((lanes.event_kind[rows] == 2) & ~(g >= 0.0)).any(axis=1)
+        _order_events(lanes, rows[held])
+        return held
+
+    def _restart(self, lanes: _Lanes, runs: Sequence[_Run], rows: np.ndarray) -> None:
+        """Start the next interval of lanes ``rows`` where they stand (f and margins known)."""
+        if rows.size == 0:
+            return
+        lanes.h[rows] = self._first_step(lanes, rows)
+        lanes.evals[rows] = 2
+        lanes.steps[rows] = lanes.accepted[rows] = 0
+        lanes.rejected[rows] = False
+        begin = time.perf_counter()
+        for b in rows:
+            run = runs[b]
+            t0 = float(lanes.t[b])
+            run.grid = None if run.output_dt is None else _Grid(run.output_dt, t0, lanes.t1[b])
+            run.ts.append(lanes.t[b : b + 1].copy())
+            run.ys.append(lanes.y[b : b + 1].copy())
+            run.holds.append(lanes.lam[b : b + 1].copy())
+        self.seconds["lanes"] += time.perf_counter() - begin
 
     def _store_samples(
         self,
@@ -862,13 +987,13 @@ class BatchEngine:
         if the phase's own margin crossed too (the two agree to round-off, and the phase's
         events are what the event location uses).
         """
-        request = run.request
-        assert request is not None
         joints = np.flatnonzero(lanes.event_kind[b] == 2)
         if fired is not None:
             joints = joints[fired[joints]]
-        if joints.size == 0:
+        if joints.size == 0 or not self._sync(lanes, run, b):
             return
+        request = run.request
+        assert request is not None
         begin = time.perf_counter()
         phase = request.phase
         hold = phase.holding_torque(float(t), y[run.reduced])  # what its slip events ask for
@@ -988,33 +1113,65 @@ class BatchEngine:
         return dp.dense_coefficients(into, t, y, step.y_new, step.h, step.K, _LANES)
 
     def _finish(self, lanes: _Lanes, run: _Run, b: int, event: int | None) -> None:
-        """Hand run ``b`` its segment (reduced layout) and take its next request."""
+        """Hand run ``b`` its segment (after the rests it settled) and take its next request."""
+        self._hand(lanes, run, b, self._samples(lanes, run, b), event)
+
+    def _hand(
+        self,
+        lanes: _Lanes,
+        run: _Run,
+        b: int,
+        samples: tuple[np.ndarray, np.ndarray, np.ndarray],
+        event: int | None,
+    ) -> None:
+        """Hand run ``b`` its interval's samples as its segment (reduced layout)."""
+        t, y, hold = samples
+        steps = int(lanes.accepted[b])
+        segment = Segment(t, y[:, run.reduced], int(lanes.evals[b]), event, steps, hold)
+        reply: Reply = (*run.pieces, segment) if run.pieces else segment
+        run.pieces = []
+        self.advance(run, reply)
+
+    def _sync(self, lanes: _Lanes, run: _Run, b: int) -> bool:
+        """Hand run ``b`` the rests its lane settled, if any: its request is the lane's again.
+
+        The run's phase (its own event functions) is then the one its lane integrates.
+        Returns whether the run goes on (its loop may fail on them: the lane stops).
+        """
+        if run.pieces:
+            pieces, run.pieces = tuple(run.pieces), []
+            self.advance(run, pieces)
+            if run.request is None:
+                lanes.running[b] = False
+        return run.request is not None
+
+    def _samples(
+        self, lanes: _Lanes, run: _Run, b: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Run ``b``'s samples since its interval began, taken from it.
+
+        Returns:
+            Times [s], padded states and holding torques [N m] (NaN at free joints).
+        """
         begin = time.perf_counter()
-        y = np.concatenate(run.ys)
-        hold = np.concatenate(run.holds)
-        locked = lanes.locked[b]
-        hold[:, ~locked] = np.nan
-        segment = Segment(
-            t=np.concatenate(run.ts),
-            y=y[:, run.reduced],
-            rhs_evals=int(lanes.evals[b]),
-            event=event,
-            n_steps=int(lanes.accepted[b]),
-            holding=hold,
-        )
+        t, y, hold = np.concatenate(run.ts), np.concatenate(run.ys), np.concatenate(run.holds)
+        hold[:, ~lanes.locked[b]] = np.nan
         run.ts, run.ys, run.holds = [], [], []
         self.seconds["lanes"] += time.perf_counter() - begin
-        self.advance(run, segment)
+        return t, y, hold
 
     def advance(
-        self, run: _Run, segment: Segment | None = None, error: VtmError | None = None
+        self, run: _Run, segment: Reply | None = None, error: VtmError | None = None
     ) -> None:
-        """Hand a run its segment (or error), timing its hybrid loop."""
+        """Hand a run its segment(s) (or error), timing its hybrid loop; not once it has ended."""
+        if run.outcome is not None:
+            return
         begin = time.perf_counter()
         run.advance(segment, error)
         self.seconds["hybrid"] += time.perf_counter() - begin
         if segment is not None or error is not None:
             self.lane_python["resumptions"] += 1
+            self.lane_python["intervals"] += len(segment) if isinstance(segment, tuple) else 1
         if run.outcome is not None and self.finished is not None:
             try:
                 self.finished(run)
@@ -1100,6 +1257,20 @@ def _roots(
             past = _crossed(g0[left], g(mid, left), direction[left])
             hi[left], lo[left] = np.where(past, mid, hi[left]), np.where(past, lo[left], mid)
     return hi, ok
+
+
+def _order_events(lanes: _Lanes, rows: np.ndarray) -> None:
+    """Number the state events of lanes ``rows`` as their phases do.
+
+    :meth:`~vtm_pin.physics.brakes.BrakeMachine.event_specs`: the sliding joints' rests in
+    joint order, then the stuck joints' slips in joint order.
+    """
+    if rows.size == 0:
+        return
+    n = lanes.n
+    kind = lanes.event_kind[rows]
+    key = np.where(kind == 1, 0, np.where(kind == 2, n, 2 * n)) + np.arange(n)
+    lanes.event_index[rows] = np.argsort(np.argsort(key, axis=1), axis=1)
 
 
 def _ramp_factor(lanes: _Lanes, rows: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -84,7 +84,19 @@ class _Hybrid:
         self.baumgarte = (0.0, 0.0)
         self.data = full_data(robot)
         self.events: list[EventRecord] = []
-        self.phase = self.new_phase()
+        self._labels = tuple(RowLabel(RowKind.JOINT, name) for name in robot.joints)
+        self._phase: Phase | None = self.new_phase()
+
+    @property
+    def phase(self) -> Phase:
+        """The current phase, built when first asked for after :meth:`stick_rested`."""
+        if self._phase is None:
+            self._phase = self.new_phase()
+        return self._phase
+
+    @phase.setter
+    def phase(self, phase: Phase) -> None:
+        self._phase = phase
 
     def new_phase(self, locked: Sequence[int] | None = None) -> Phase:
         topology = Topology(self.robot, self.locked if locked is None else locked, self.q)
@@ -120,9 +132,9 @@ class _Hybrid:
         if (frames or self.frames) and self.rule_name == "naive":
             raise SimulationError("The naive rule is defined for joint locks only")
         labels = [
-            *(RowLabel(RowKind.JOINT, names[i]) for i in self.locked),
+            *(self._labels[i] for i in self.locked),
             *(RowLabel(RowKind.FRAME, f.name, a) for f in self.frames for a in f.axes),
-            *(RowLabel(RowKind.JOINT, names[i]) for i in joints),
+            *(self._labels[i] for i in joints),
             *(RowLabel(RowKind.FRAME, f.name, a) for f in frames for a in f.axes),
         ]
         pure = not (frames or self.frames) and len(set(joints)) == len(joints)
@@ -252,6 +264,16 @@ class _Hybrid:
         """Brakes that hold their joints at rest: one momentum-consistent lock."""
         self.lock(t, joints, LockKind.STICK)
 
+    def stick_rested(self, t: float, joint: int, hold: np.ndarray) -> None:
+        """Sliding ``joint`` reached rest and every brake at rest holds: it sticks.
+
+        The decision was taken by the integrator (:class:`Rested`). The next phase is built
+        when it is asked for: the integrator may hand more rested intervals first, which need
+        none.
+        """
+        self.machine.stick_rested(t, self, joint, hold)
+        self._phase = None
+
 
 @dataclass(frozen=True)
 class SegmentRequest:
@@ -288,6 +310,45 @@ class SegmentRequest:
             [e.event for e in self.phase.events],
             n_q=self.phase.k,
         )
+
+
+@dataclass(frozen=True)
+class Rested:
+    """An interval ended by a sliding joint reaching rest, with the brakes' decision taken.
+
+    The batched engine takes the common decision across its lanes, as
+    :meth:`~vtm_pin.physics.brakes.BrakeMachine.settle` would: no other braked joint is at
+    rest or reverses, and every braked joint at rest holds with the arrived one locked (its
+    holding torques ``hold`` are within the static limits). The arrived joint then sticks
+    (:meth:`~vtm_pin.physics.brakes.BrakeMachine.stick_rested`); the engine goes on
+    integrating the next interval without handing the run's hybrid loop anything.
+
+    Its samples are of all joints (the batched engine's padded layout), so that the loop needs
+    no phase to record them: the locked joints' q at their lock values and v exactly 0.
+
+    Attributes:
+        t: Sample times [s]; t[-1] is the rest.
+        y: States at those times, of all n joints: (q, v, W_brake, W_drive, W_short, P_brake),
+            shape (len(t), 3 n + 3) [rad, rad/s, J, N m s].
+        holding: Holding torques at the samples [N m], NaN at free joints, shape (len(t), n).
+        rhs_evals: Right-hand-side evaluations of the interval.
+        steps: Its accepted steps.
+        joint: Index of the joint that reached rest.
+        hold: Holding torques [N m] of every joint with it locked (0 where free), at t[-1].
+    """
+
+    t: np.ndarray
+    y: np.ndarray
+    holding: np.ndarray
+    rhs_evals: int
+    steps: int
+    joint: int
+    hold: np.ndarray
+
+
+#: What the hybrid loop is sent for its request: the interval, or (the batched engine) the
+#: intervals since, each but the last a :class:`Rested` one, the last possibly not.
+Reply = Segment | tuple[Segment | Rested, ...]
 
 
 def simulate(
@@ -337,12 +398,13 @@ def hybrid_run(
     transition: str = "kkt",
     progress: Callable[[float], None] | None = None,
     reduced_models: bool = True,
-) -> Generator[SegmentRequest, Segment, SimulationResult]:
+) -> Generator[SegmentRequest, Reply, SimulationResult]:
     """The hybrid loop of :func:`simulate` as a generator of integration requests.
 
     It yields a :class:`SegmentRequest` for every interval between events and must be sent
-    the integrated :class:`~vtm_pin.numerics.integrators.Segment`; it returns the result (as the
-    value of its ``StopIteration``). The wall time it reports runs from its start to its end,
+    the integrated :class:`~vtm_pin.numerics.integrators.Segment` (or, from the batched
+    engine, a :data:`Reply` of several); it returns the result (as the value of its
+    ``StopIteration``). The wall time it reports runs from its start to its end,
     so it includes the integration of its intervals, whoever did it (the batched engine
     replaces it with the run's share of its batch). Without ``reduced_models`` the loop's
     own dynamics (brake decisions, holding torques, joint-lock jumps by the dense kkt rule)
@@ -378,7 +440,7 @@ def hybrid_run(
     trace = _Trace(n, h.extras.size)
     if queue and queue[0].t <= 0.0:
         trace.add_state(0.0, h)  # the state before the events at t = 0
-    rhs_evals = steps = state_events = 0
+    counts = _Counts()
     t = 0.0
     while True:
         # Events due now (t = 0 or a time event just reached) are applied before integrating.
@@ -390,7 +452,7 @@ def hybrid_run(
             break
         t_end = min(queue[0].t, duration) if queue else duration
         phase = h.phase
-        segment = yield SegmentRequest(
+        reply = yield SegmentRequest(
             phase,
             phase.rhs if progress is None else _Reporting(phase.rhs, progress),
             t,
@@ -398,27 +460,87 @@ def hybrid_run(
             t_end,
             _sampling(integrator, phase),
         )
-        rhs_evals += segment.rhs_evals
-        steps += segment.steps
-        _check_energy(h, phase, segment.y, segment.t, integrator)
-        h.q, h.v, h.extras = trace.add_segment(phase, segment, h, bool(problem.brakes))
-        t = float(segment.t[-1])
-        if progress is not None:
-            progress(t)
-        if segment.event is not None:
-            state_events += 1
-            _check_chatter(state_events, t)
-            h.settle(t, due=[phase.event_specs[segment.event].joint])
-            if t >= duration:
-                trace.add_state(t, h)
+        for piece in reply if isinstance(reply, tuple) else (reply,):
+            t = _take(h, trace, piece, counts, integrator, duration, progress)
     return trace.result(
         robot,
         h,
         integrator=integrator.name,
-        rhs_evals=rhs_evals,
-        steps=steps,
+        rhs_evals=counts.rhs_evals,
+        steps=counts.steps,
         wall_time=time.perf_counter() - start,
     )
+
+
+@dataclass
+class _Counts:
+    """The hybrid loop's counts: right-hand-side evaluations, steps and state events."""
+
+    rhs_evals: int = 0
+    steps: int = 0
+    state_events: int = 0
+
+
+def _take(
+    h: _Hybrid,
+    trace: _Trace,
+    piece: Segment | Rested,
+    counts: _Counts,
+    integrator: Integrator,
+    duration: float,
+    progress: Callable[[float], None] | None,
+) -> float:
+    """Record one interval of the current phase and apply the state event ending it; its end [s].
+
+    A :class:`Rested` interval's event is decided already: its joint sticks. Any other event
+    goes to the brakes' :meth:`~vtm_pin.physics.brakes.BrakeMachine.settle`.
+    """
+    if isinstance(piece, Rested):
+        return _take_rested(h, trace, piece, counts, duration, progress)
+    segment = piece
+    phase = h.phase
+    counts.rhs_evals += segment.rhs_evals
+    counts.steps += segment.steps
+    _check_energy(h, phase, segment.y, segment.t, integrator)
+    h.q, h.v, h.extras = trace.add_segment(phase, segment, h, bool(h.brakes))
+    t = float(segment.t[-1])
+    if progress is not None:
+        progress(t)
+    if segment.event is not None:
+        counts.state_events += 1
+        _check_chatter(counts.state_events, t)
+        h.settle(t, due=[phase.event_specs[segment.event].joint])
+        if t >= duration:
+            trace.add_state(t, h)
+    return t
+
+
+def _take_rested(
+    h: _Hybrid,
+    trace: _Trace,
+    piece: Rested,
+    counts: _Counts,
+    duration: float,
+    progress: Callable[[float], None] | None,
+) -> float:
+    """:func:`_take` for a :class:`Rested` interval: its joint sticks; no phase is built."""
+    counts.rhs_evals += piece.rhs_evals
+    counts.steps += piece.steps
+    if not np.isfinite(piece.y).all():
+        raise SimulationError(
+            f"The state became non-finite between t = {piece.t[0]:.6g} s and "
+            f"{piece.t[-1]:.6g} s: the step is too large for these dynamics; reduce it"
+        )
+    h.q, h.v, h.extras = trace.add_rested(piece, h)
+    t = float(piece.t[-1])
+    if progress is not None:
+        progress(t)
+    counts.state_events += 1
+    _check_chatter(counts.state_events, t)
+    h.stick_rested(t, piece.joint, piece.hold)
+    if t >= duration:
+        trace.add_state(t, h)
+    return t
 
 
 class TimeKind(IntEnum):
@@ -550,6 +672,24 @@ class _Trace:
             drift=phase.constraint_drift(segment.y),
         )
         return q[-1].copy(), v[-1].copy(), extras[-1].copy()
+
+    def add_rested(self, piece: Rested, h: _Hybrid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Record a :class:`Rested` interval; the full (q, v, extras) at its end."""
+        n, size = self.n, piece.t.size
+        free = np.ones(n, dtype=bool)
+        free[h.locked] = False
+        y = piece.y
+        self._append(
+            t=piece.t,
+            q=y[:, :n],
+            v=y[:, n : 2 * n],
+            free=np.repeat(free[None], size, axis=0),
+            modes=np.repeat(np.array(h.machine.modes, dtype=np.int8)[None], size, axis=0),
+            extras=y[:, 2 * n :],
+            hold=piece.holding,
+            drift=np.full((size, 2), np.nan),
+        )
+        return y[-1, :n].copy(), y[-1, n : 2 * n].copy(), y[-1, 2 * n :].copy()
 
     def result(
         self,

@@ -316,6 +316,20 @@ class BrakeMachine:
             self._check_released(t, world, released)
             self._verify_stuck(t, world)
 
+    def stick_rested(self, t: float, world: BrakeWorld, joint: int, hold: np.ndarray) -> None:
+        """:meth:`settle`'s most common outcome, decided by the caller: ``joint`` sticks.
+
+        Sliding ``joint`` reached rest (its zero-velocity event), no other braked joint is at
+        rest or slides against its mode, and the holding torques ``hold`` [N m] with it
+        locked are within every stuck joint's static limit and its own. :meth:`settle`
+        would then set its rate to 0, stick it with these records and verify the stuck
+        joints under unchanged loads: nothing more. The batched engine decides this across
+        its lanes (:class:`vtm_pin.core.simulation.Rested`).
+        """
+        self._v_event = {joint: float(world.v[joint])}
+        world.v[joint] = 0.0
+        self._stick(t, world, [joint], hold, {joint: self.static(t, joint)})
+
     def _verify_stuck(self, t: float, world: BrakeWorld) -> None:
         """Step 4 of :meth:`settle`: stuck joints must hold under the final modes' loads.
 
