@@ -11,6 +11,18 @@ dynamics of every run of a batch in at most three batched calls:
 ``pinocchio.abaInParallel`` for the runs without locks, ``pinocchio.rneaInParallel`` twice for
 those with.
 
+**Rests settled across the lanes.** The most common event of a stop is a sliding joint
+reaching rest while every brake at rest can hold: the brake state machine
+(:meth:`~vtm_pin.physics.brakes.BrakeMachine.settle`) then only sticks that joint, whose lock
+at v_j = 0 leaves v unchanged. The engine takes this decision itself, as array operations
+over the lanes whose rests it located (:meth:`BatchEngine._settle_rests`): it locks the joint
+in the lane, evaluates the right-hand side there (which the next interval needs anyway) and
+tests every stuck joint's slip margin, the stick decision's own test. A lane that holds goes
+on with its next interval at once; its run's loop is handed the interval later, as a
+:class:`~vtm_pin.core.simulation.Rested` one, and writes the same records without a decision,
+a trial lock set or a phase of its own. Anything else (a reversal, another joint at rest, a
+brake that cannot hold, a slip) goes to the run's loop, as before.
+
 **What batches together** (:func:`_groups`): runs with the same integrator settings and the
 same model (:func:`model_key`), when that model has at least :data:`MIN_LANES` runs; the runs
 of the other models are pooled when their models have the same joints, placements, parents,
