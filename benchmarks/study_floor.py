@@ -20,8 +20,9 @@ bound of any engine that evaluates them once each with these algorithms.
 It also prints each figure as a multiple of the floor (issue 27's target: a case at most 5x
 the floor), and what the batched engine still did lane by lane in Python per case
 (:data:`vtm_pin.core.batch.LANE_PYTHON`): resumptions of a case's hybrid loop (brake decisions,
-locks, the next phase), event locations with the phase's own functions, and rests located
-across the lanes.
+locks, the next phase), event locations with the phase's own functions, rests located across
+the lanes, rests settled across the lanes (handed to the loop later, without a resumption of
+their own) and the intervals handed to the loop.
 
     OMP_NUM_THREADS=1 python benchmarks/study_floor.py [--study S] [--cases N] [--target 15]
 """
