@@ -17,6 +17,7 @@ own model: the lanes carry their inertias).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -26,6 +27,7 @@ import yaml
 
 from vtm_pin.core.batch import run_many
 from vtm_pin.core.results import SimulationResult
+from vtm_pin.exceptions import StepLimitError
 from vtm_pin.physics.brakes import BrakeEventKind
 from vtm_pin.scene.scenario import SCENARIOS_DIR, build_scenario, merge_includes
 from vtm_pin.study.cases import resolve_case
@@ -157,3 +159,18 @@ def test_rests_the_brakes_cannot_hold_go_to_the_loops_own_decision(
     assert counts["settled_rests"] < counts["batched_locations"] + counts["own_locations"]
     kinds = {event.kind for event in batched.results[-1].brake_events}
     assert {BrakeEventKind.SLIP, BrakeEventKind.REVERSE} <= kinds
+
+
+def test_a_run_failing_after_settled_rests_fails_as_on_the_scalar_engine() -> None:
+    """Its rests are handed to its loop first: the same error, word for word, in the same
+    interval (3 steps an interval: the one after the fifth rest needs more)."""
+    raw = _base()
+    scenario = build_scenario(raw, source="rests", base_dir=SCENARIOS_DIR)
+    tight = dataclasses.replace(scenario.integrator, max_steps=3)
+    batched = run_many([scenario.problem], [tight], min_lanes=1)
+    scalar = run_many([scenario.problem], [tight], engine="scalar")
+    (failed,), (reference,) = batched.results, scalar.results
+    assert isinstance(failed, StepLimitError) and isinstance(reference, StepLimitError)
+    assert str(failed) == str(reference)
+    assert batched.lane_python["settled_rests"] == 5
+    assert batched.lane_python["intervals"] == 6  # the scalar loop's before it fails

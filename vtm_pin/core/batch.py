@@ -694,7 +694,7 @@ class BatchEngine:
         finished: list[int] = []
         over = rows[lanes.steps[rows] > it.max_steps]
         for b in over:
-            self._fail(lanes, runs, b, self._step_limit(lanes, b), finished)
+            self._fail(lanes, runs, b, self._step_limit(lanes, runs[b], b), finished)
         rows = rows[lanes.steps[rows] <= it.max_steps]
         h, last = dp.clamp(lanes.t[rows], lanes.t1[rows], lanes.h[rows], it.max_step, _LANES)
         K, y_new, lam_new = self._stages(lanes, rows, h)
@@ -1183,7 +1183,9 @@ class BatchEngine:
         self.seconds["hybrid"] += time.perf_counter() - begin
         if segment is not None or error is not None:
             self.lane_python["resumptions"] += 1
-            self.lane_python["intervals"] += len(segment) if isinstance(segment, tuple) else 1
+            self.lane_python["intervals"] += (
+                len(segment) if isinstance(segment, tuple) else int(segment is not None)
+            )
         if run.outcome is not None and self.finished is not None:
             try:
                 self.finished(run)
@@ -1193,16 +1195,20 @@ class BatchEngine:
     def _fail(
         self, lanes: _Lanes, runs: Sequence[_Run], b: int, error: VtmError, finished: list[int]
     ) -> None:
+        """Run ``b`` fails in its lane's interval (after the rests it settled, as the scalar's)."""
+        self._sync(lanes, runs[b], b)
         lanes.running[b] = False
         self.advance(runs[b], error=error)
         finished.append(int(b))
 
-    def _step_limit(self, lanes: _Lanes, b: int) -> StepLimitError:
+    def _step_limit(self, lanes: _Lanes, run: _Run, b: int) -> StepLimitError:
+        """The scalar dop853's error for run ``b``'s interval (its first sample is its start)."""
         it = self.integrator
+        t0 = float(run.ts[0][0]) if run.ts else float(lanes.t[b])
         return StepLimitError(
-            f"dop853 took {it.max_steps} steps and reached only t = {lanes.t[b]:.6g} s of "
-            f"{lanes.t1[b]:g} s; the limit is {it.max_steps}: set integrator.max_steps, or "
-            "loosen rtol / atol",
+            f"dop853 took {it.max_steps} steps from t = {t0:g} s and reached only "
+            f"t = {lanes.t[b]:.6g} s of {lanes.t1[b]:g} s; the limit is {it.max_steps}: set "
+            "integrator.max_steps, or loosen rtol / atol",
             it.max_steps + 1,
             it.max_steps,
         )
