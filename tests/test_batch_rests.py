@@ -103,6 +103,14 @@ def _both(raws: list[dict[str, Any]]) -> tuple[Any, Any]:
     return batched, scalar
 
 
+def _assert_all_same(scalar: Any, batched: Any, tolerance: float = TOLERANCE) -> None:
+    """Every run batched, and its records the scalar run's."""
+    assert batched.engines == ("batched",) * len(batched.results)
+    for one, other in zip(scalar.results, batched.results, strict=True):
+        assert isinstance(one, SimulationResult) and isinstance(other, SimulationResult)
+        _assert_same(one, other, tolerance)
+
+
 @pytest.fixture(scope="module")
 def outcomes() -> tuple[Any, Any]:
     raw = _base()
@@ -130,23 +138,16 @@ def _varied(index: int, case: dict[str, Any]) -> dict[str, Any]:
 def test_varied_brakes_drives_and_payloads_settle_rests_as_the_scalar_engine() -> None:
     """Ramps, staggered delays, viscous brakes, short-circuit braking, a payload per case."""
     batched, scalar = _both([_varied(i, case) for i, case in enumerate(CASES[:4])])
-    assert batched.engines == ("batched",) * 4
     assert batched.lane_python["settled_rests"] >= 12
-    for one, other in zip(scalar.results, batched.results, strict=True):
-        assert isinstance(one, SimulationResult) and isinstance(other, SimulationResult)
-        _assert_same(one, other, VARIED_TOLERANCE)
+    _assert_all_same(scalar, batched, VARIED_TOLERANCE)
 
 
 def test_settled_rests_leave_the_records_of_the_scalar_engine(
     outcomes: tuple[Any, Any],
 ) -> None:
     batched, scalar = outcomes
-    assert batched.engines == ("batched",) * len(CASES)
-    counts = batched.lane_python
-    assert counts["settled_rests"] >= 4 * (len(CASES) - 1)  # the held cases' rests, most of them
-    for one, other in zip(scalar.results, batched.results, strict=True):
-        assert isinstance(one, SimulationResult) and isinstance(other, SimulationResult)
-        _assert_same(one, other, VARIED_TOLERANCE)
+    assert batched.lane_python["settled_rests"] >= 4 * (len(CASES) - 1)  # most held rests
+    _assert_all_same(scalar, batched)
 
 
 def test_rests_the_brakes_cannot_hold_go_to_the_loops_own_decision(
