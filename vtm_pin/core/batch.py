@@ -432,6 +432,12 @@ class _Run:
         self.pieces: list[Rested] = []
         self.output_dt: float | None = None
 
+    def sample(self, lanes: _Lanes, b: int) -> None:
+        """Keep its lane ``b``'s state now as a sample (time, padded state, holding torques)."""
+        self.ts.append(lanes.t[b : b + 1].copy())
+        self.ys.append(lanes.y[b : b + 1].copy())
+        self.holds.append(lanes.lam[b : b + 1].copy())
+
     def advance(self, segment: Reply | None = None, error: VtmError | None = None) -> None:
         """Send the loop its segment(s) (or error); keep its next request or its outcome."""
         try:
@@ -560,9 +566,7 @@ class BatchEngine:
             self._own_margins(lanes, runs[b], b, lanes.t[b], lanes.y[b], lanes.g_prev[b], None)
         begin = time.perf_counter()
         for b in fresh:  # the interval's first sample
-            runs[b].ts.append(lanes.t[b : b + 1].copy())
-            runs[b].ys.append(lanes.y[b : b + 1].copy())
-            runs[b].holds.append(lanes.lam[b : b + 1].copy())
+            runs[b].sample(lanes, b)
         self.seconds["lanes"] += time.perf_counter() - begin
 
     def _load(self, lanes: _Lanes, b: int, run: _Run) -> None:
@@ -791,9 +795,7 @@ class BatchEngine:
         for i in np.flatnonzero(step.last | gridless):
             b = int(rows[i])
             run = runs[b]
-            run.ts.append(lanes.t[b : b + 1].copy())
-            run.ys.append(lanes.y[b : b + 1].copy())
-            run.holds.append(lanes.lam[b : b + 1].copy())
+            run.sample(lanes, b)
             if step.last[i]:
                 lanes.running[b] = False
                 self._finish(lanes, run, b, None)
@@ -953,9 +955,7 @@ class BatchEngine:
             run = runs[b]
             t0 = float(lanes.t[b])
             run.grid = None if run.output_dt is None else _Grid(run.output_dt, t0, lanes.t1[b])
-            run.ts.append(lanes.t[b : b + 1].copy())
-            run.ys.append(lanes.y[b : b + 1].copy())
-            run.holds.append(lanes.lam[b : b + 1].copy())
+            run.sample(lanes, b)
         self.seconds["lanes"] += time.perf_counter() - begin
 
     def _store_samples(
