@@ -11,6 +11,7 @@ import dataclasses
 
 import numpy as np
 import pinocchio as pin
+import pytest
 import yaml
 
 import vtm_pin as vp
@@ -25,6 +26,7 @@ from vtm_pin.core.batch import (
     run_many,
 )
 from vtm_pin.numerics.dynamics import compute_M
+from vtm_pin.physics import body_kernel
 from vtm_pin.physics.payload import Payload, attach_payload
 from vtm_pin.scene.scenario import SCENARIOS_DIR
 
@@ -43,10 +45,25 @@ def _payload(rng: np.random.Generator) -> Payload:
     return Payload(mass, tuple(rng.uniform(-0.1, 0.1, 3)), inertia)
 
 
-def test_lanes_with_their_own_inertias_have_their_own_models_dynamics() -> None:
+@pytest.mark.parametrize(
+    "compiled",
+    [
+        False,
+        pytest.param(
+            True,
+            marks=pytest.mark.skipif(not body_kernel.AVAILABLE, reason="Numba is not installed"),
+        ),
+    ],
+    ids=["numpy", "compiled"],
+)
+def test_lanes_with_their_own_inertias_have_their_own_models_dynamics(
+    compiled: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """a and the holding torques of random lanes, each with its own payload (or the batch's
     model, or a random inertia on another joint's body), are Pinocchio's ABA / RNEA on that
-    lane's own model: lanes with no lock, every joint locked, one free joint, random locks."""
+    lane's own model: lanes with no lock, every joint locked, one free joint, random locks.
+    The payload bodies' motions by NumPy and by the compiled kernel (the ``fast`` extra)."""
+    monkeypatch.setattr(body_kernel, "AVAILABLE", compiled)
     robot = vp.load_robot("ur10")
     base, n = robot.model, robot.nv
     rng = np.random.default_rng(27)

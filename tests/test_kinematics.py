@@ -1,3 +1,5 @@
+from typing import Any
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -5,7 +7,7 @@ from conftest import SCENARIOS, robot
 
 from vtm_pin import load_scenario, run_scenario
 from vtm_pin.outputs.stopping import compute_stopping_report
-from vtm_pin.physics import kinematics
+from vtm_pin.physics import body_kernel, kinematics
 from vtm_pin.physics.kinematics import (
     NUMPY_FROM,
     compute_tool_jacobian,
@@ -250,19 +252,32 @@ def test_the_stopping_reports_tool_path_and_speed_are_pinocchios_on_the_shipped_
     assert report.tcp_peak_speed == pytest.approx(peak, rel=0, abs=VEC_TOL)
 
 
+#: The two ways of computing the bodies' motions: NumPy over all states, and the compiled
+#: kernel (state by state, with Numba: the ``fast`` extra, which the ``test`` extra installs).
+BODY_MOTIONS = {
+    "numpy": kinematics.numpy_body_motions,
+    "compiled": pytest.param(
+        body_kernel.body_motions,
+        marks=pytest.mark.skipif(not body_kernel.AVAILABLE, reason="Numba is not installed"),
+    ),
+}
+
+
+@pytest.mark.parametrize("way", BODY_MOTIONS.values(), ids=BODY_MOTIONS.keys())
 @pytest.mark.parametrize("name", ["ur10", "tree"])
-def test_body_motions_are_pinocchios_local_jacobians_velocities_and_bias_accelerations(name):
+def test_body_motions_are_pinocchios_local_jacobians_velocities_and_bias_accelerations(
+    name: str, way: Any
+) -> None:
     """body_motions against Pinocchio's getJointJacobian(LOCAL), data.v and data.a_gf (RNEA at
-    a = 0, gravity included), every joint of the UR10 and of the tree of every joint type.
+    a = 0, gravity included), every joint of the UR10 and of the tree of every joint type,
+    by NumPy and by the compiled kernel.
 
     Tolerance VEC_TOL [-, m/s, m/s^2] relative to 1 + the largest entry: the accelerations
     reach ~10 m/s^2 (gravity), each step a few products rounding at ~1e-16."""
     model = robot("ur10").model if name == "ur10" else every_joint_type()[0]
     qs, vs = random_states(model, seed=15, count=8)
     joints = tuple(range(1, model.njoints))
-    J, V, C = kinematics.body_motions(
-        kinematics.joint_chain(model), qs, vs, joints, model.gravity.vector
-    )
+    J, V, C = way(kinematics.joint_chain(model), qs, vs, joints, model.gravity.vector)
     assert J.shape == (8, len(joints), 6, model.nv) and V.shape == C.shape == (8, len(joints), 6)
     data = model.createData()
     for b, (q, v) in enumerate(zip(qs, vs, strict=True)):
