@@ -44,7 +44,8 @@ The maximum reach is cached per kinematics (the tree, joint placements and axes,
 frame's parent joint and placement, position limits), tool frame and guess of the joints that
 move the tool (a start of its search), so that a model that differs only in its inertias (a
 payload) reuses it; a pose is cached per kinematics, tool frame, extension and guess, so that
-the cases of a study that share them compute it once.
+the cases of a study that share them compute it once. A study's runner fills this cache with its
+cases' poses solved together (:mod:`vtm_pin.scene.annex_b_batch`).
 """
 
 from __future__ import annotations

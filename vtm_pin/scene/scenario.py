@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -41,6 +41,7 @@ from ..schemas import load_schema
 from ..standards.bounds import BoundSpec, Uncertainty, parse_bounds
 from ..standards.separation import Separation, parse_separation
 from .annex_b import Conditions, TestState, compute_test_state, describe_conditions
+from .annex_b_batch import solve_poses
 
 #: JSON schema of a scenario file: ``vtm_pin/schemas/scenario.schema.json`` with its ``$ref``
 #: inlined (:func:`vtm_pin.schemas.load_schema`). Each key's ``description`` gives its unit,
@@ -402,6 +403,51 @@ def _initial_state(
         raise ScenarioError(source, f"annex_b.{exc.key}", exc.problem) from exc
     assumptions.extend(describe_conditions(conditions, state, tool_frame))
     return state.q, state.v, state
+
+
+def solve_variant_poses(
+    scenario: Scenario, raw: Mapping[str, Any], variants: Iterable[Mapping[str, Any]]
+) -> int:
+    """Solve the Annex-B poses of many variants of a built scenario at once (a study's cases).
+
+    The variants with ``raw``'s robot and tool frame (``raw`` being what ``scenario`` was built
+    from) and an ``annex_b`` key are grouped by their guess pose (``initial.q``), and each
+    group's extensions are solved together (:func:`vtm_pin.scene.annex_b_batch.solve_poses`):
+    their builds then find their poses in the pose cache. Nothing else of a variant is read or
+    checked here: a variant this cannot read, or whose poses cannot be set up, is left to its
+    own build, which solves its pose or reports the problem.
+
+    Returns:
+        The number of poses solved.
+    """
+    if scenario.test_state is None:
+        return 0
+    robot, frame = scenario.problem.robot, scenario.tool_frame
+    groups: dict[bytes, tuple[np.ndarray, list[float]]] = {}
+    for variant in variants:
+        spec = variant.get("annex_b")
+        if not isinstance(spec, Mapping) or any(
+            variant.get(key) != raw.get(key) for key in ("robot", "tool_frame")
+        ):
+            continue
+        initial = variant.get("initial")
+        try:
+            guess = (
+                _joint_vector(robot, initial["q"], "", "initial.q")
+                if initial is not None
+                else pin.neutral(robot.model)
+            )
+            extension = float(spec.get("extension", 1.0))
+        except (VtmError, KeyError, TypeError, ValueError):
+            continue
+        groups.setdefault(guess.tobytes(), (guess, []))[1].append(extension)
+    solved = 0
+    for guess, extensions in groups.values():
+        try:
+            solved += solve_poses(robot, frame, guess, extensions)
+        except ConditionsError:
+            continue
+    return solved
 
 
 #: Schema of a fragment a scenario includes: drives, brakes and the assumptions behind them.
