@@ -41,6 +41,16 @@ from vtm_pin.study.cases import find_study, load_study
 from vtm_pin.study.runner import format_study, run_study
 
 TOLERANCE = 1e-8
+#: [s] The stopping times of the shipped studies' tables agree to this, not to TOLERANCE. A stop
+#: time is a rest event's time, t where v_j = 0: a difference dv in the rates (within the
+#: integrator's rtol = 1e-8) moves it by dv / a_j, and where the two engines' step control
+#: branches (a step accepted by one and rejected by the other, the error norm within round-off
+#: of 1), dv reaches 1e-9 rad/s. Measured: ur5_cb3_annex_b case bd49d1b79b93's upper bound
+#: (its third bound variant: 20 steps batched, 19 scalar) differs by 1.38e-8 s between the
+#: engines, and the scalar engine's own figure moved by 1.37e-8 s when the Annex-B pose changed
+#: by round-off (~1e-15 rad, NumPy's kinematics in place of Pinocchio's in its Newton solve):
+#: at rtol 1e-8 a stopping time is reproducible to ~1.4e-8 s, not to 1e-8.
+STOP_TIME_TOLERANCE = 3e-8
 
 
 def assert_same_ends(scalar: vp.SimulationResult, batched: vp.SimulationResult) -> None:
@@ -265,7 +275,8 @@ def assert_same_table(scalar: pd.DataFrame, batched: pd.DataFrame) -> None:
     for column in _numeric(scalar):
         a, b = scalar[column].to_numpy(), batched[column].to_numpy()
         assert np.array_equal(np.isnan(a), np.isnan(b)), column
-        assert np.nanmax(np.abs(a - b), initial=0.0) <= TOLERANCE, column
+        tolerance = STOP_TIME_TOLERANCE if "stop_time" in column else TOLERANCE
+        assert np.nanmax(np.abs(a - b), initial=0.0) <= tolerance, column
 
 
 def test_small_study_agrees_and_counts_fallbacks(
@@ -379,7 +390,8 @@ def test_a_runs_share_of_its_batch_leaves_out_the_callers_report() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["ur10_annex_b", "ur5_cb3_annex_b", "ur10_brake_wear"])
 def test_shipped_studies_agree(name: str, tmp_path: Path) -> None:
-    """Every case of the shipped studies: the batched table equals the scalar one to 1e-8.
+    """Every case of the shipped studies: the batched table equals the scalar one to 1e-8,
+    its stopping times to STOP_TIME_TOLERANCE (3e-8 s, see there).
 
     A study with flagged cases warns once per run (ur5_cb3_annex_b: one case whose joint
     slips); both engines must flag the same cases.
