@@ -18,30 +18,31 @@ from vtm_pin.scene.scenario import build_scenario, solve_variant_poses
 from vtm_pin.study import runner
 from vtm_pin.study.cases import find_study, load_study
 
-#: [m] A pose's constraint residuals by Pinocchio's kinematics: Newton stops at 1e-13 m by
-#: NumPy's; the two kinematics differ by round-off (~1e-16 m per product on a ~1 m arm).
-RESIDUAL = 1.0e-12
-#: [rad] Stationarity (x - g) + J_c^T lambda by Pinocchio's gradients, lambda by least squares:
-#: Newton stops at KKT_TOL = 1e-11 by NumPy's; 1e-10 leaves room for multipliers of a few rad/m
-#: times the round-off of the gradients.
-STATIONARY = 1.0e-10
+#: [rad] Newton over the lanes and Newton alone reach the same KKT point; both stop once its
+#: residual is <= KKT_TOL = 1e-11 rad and the constraints' <= 1e-13 m, after quadratic
+#: convergence, so their poses differ by the round-off of the two kinematics (NumPy's and
+#: Pinocchio's, ~1e-16 per product). Measured: at most 4e-15 rad on these draws.
+POSE_TOL = 1.0e-12
 UR10_GUESS = np.array(
     yaml.safe_load((SCENARIOS / "ur10_annex_b.yaml").read_text())["initial"]["q"], dtype=float
 )
 
 
+def alone(model: pin.Model, chain: annex_b._Chain, guess: np.ndarray, target: float):
+    """``annex_b._newton`` for one target reach [m]: the free joints' values or None."""
+    ev = annex_b._Evaluator(model, chain, guess)
+    return annex_b._newton(ev, guess[chain.free], target, annex_b._bounds(model, chain))
+
+
 @pytest.mark.parametrize("name", ["ur10", "ur5"])
-def test_a_lanes_pose_is_the_same_alone_and_among_others_and_a_kkt_point(name: str) -> None:
+def test_newton_over_the_lanes_is_newton_alone(name: str) -> None:
     """For three guesses (the UR10 Annex-B base's, the neutral pose, a random one) and 40
-    extensions each in (0, 1), among them ones Newton refuses (a folded arm, a stretched one):
-    - each lane's pose, or refusal, is the same to the bit solved alone (a single case's
-      build) and among the 40 (a study's): a case's figures do not depend on its company;
-    - each pose meets the constraints and the stationarity condition by Pinocchio's frame
-      Jacobian (annex_b._Evaluator), within RESIDUAL and STATIONARY."""
+    extensions each in (0, 1), among them ones Newton refuses (a folded arm, a stretched
+    one), each lane returns the pose Newton alone returns, within POSE_TOL, and refuses where
+    it refuses."""
     the = robot(name)
     model = the.model
     chain = annex_b._chain(model, the.tool_frame)
-    bounds = annex_b._bounds(model, chain)
     rng = np.random.default_rng(27)
     lower = np.maximum(model.lowerPositionLimit, -np.pi)
     guesses = [pin.neutral(model), rng.uniform(lower, np.minimum(model.upperPositionLimit, np.pi))]
@@ -52,28 +53,25 @@ def test_a_lanes_pose_is_the_same_alone_and_among_others_and_a_kkt_point(name: s
         guess = annex_b._clip(model, guess)
         R = annex_b._max_reach(model, chain, guess).R
         es = np.concatenate([rng.uniform(0.02, 0.999, 36), [0.001, 0.01, 0.9999, 0.99999]])
-        lanes = annex_b_batch._Lanes(model, chain, annex_b_batch._joints(model, chain), guess)
-        many = annex_b_batch.newton_many(lanes, guess[chain.free], es * R, bounds)
+        lanes = annex_b_batch._Lanes(the, chain, annex_b_batch.joint_chain(model), guess)
+        many = annex_b_batch.newton_many(
+            lanes, guess[chain.free], es * R, annex_b._bounds(model, chain)
+        )
         for e, x in zip(es, many, strict=True):
-            one = annex_b_batch.newton_alone(model, chain, guess, e * R, bounds)
-            assert (x is None) == (one is None), f"e = {e}: among others {x}, alone {one}"
-            if x is None:
+            one = alone(model, chain, guess, e * R)
+            assert (x is None) == (one is None), f"e = {e}: lanes {x}, alone {one}"
+            if one is not None:
+                assert x is not None and np.abs(x - one).max() <= POSE_TOL
+                found += 1
+            else:
                 refused += 1
-                continue
-            assert one is not None and np.array_equal(x, one)
-            ev = annex_b._Evaluator(model, chain, guess).at(x)
-            assert abs(ev.r - e * R) <= RESIDUAL and abs(ev.h) <= RESIDUAL
-            Jc = np.array([ev.dr, ev.dh])
-            lam = np.linalg.lstsq(Jc.T, -(x - guess[chain.free]), rcond=None)[0]
-            assert np.abs((x - guess[chain.free]) + Jc.T @ lam).max() <= STATIONARY
-            found += 1
     assert found >= 20 * len(guesses) and refused > 0  # both outcomes were exercised
 
 
 def test_a_studys_cases_find_their_poses_solved_together() -> None:
     """solve_variant_poses solves every later case's e < 1 pose in one go; the cases' builds
-    then find them cached: the test states equal to the bit those built case by case with an
-    empty cache, and their builds solve nothing more (Newton is not called)."""
+    then find them cached: the test states equal those built with an empty cache (within
+    POSE_TOL), and their builds solve nothing more (Newton alone is not called)."""
     study = load_study(find_study("ur10_envelope"))
     cases = study.cases()[:40]
     raws = [runner._case_raw(runner.CaseTask(study.base, "", "", "", c)) for c in cases]
@@ -97,7 +95,7 @@ def test_a_studys_cases_find_their_poses_solved_together() -> None:
     assert calls == []
     for state, reference in zip(states, alone_states[1:], strict=True):
         assert state is not None and reference is not None
-        np.testing.assert_array_equal(state.q, reference.q)
+        assert np.abs(state.q - reference.q).max() <= POSE_TOL
         np.testing.assert_array_equal(state.v, reference.v)
 
 

@@ -19,7 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vtm_pin.physics.payload import Payload, attach_payload
-from vtm_pin.scene import annex_b, annex_b_batch
+from vtm_pin.scene import annex_b
 from vtm_pin.scene.annex_b import (
     DIRECTIONS,
     RESIDUAL_TOL,
@@ -84,9 +84,7 @@ def assert_meets_constraints(r, q: np.ndarray, e: float, g: np.ndarray) -> None:
 
 @pytest.mark.parametrize("name", ["ur10", "panda", "rx160l"])
 def test_the_hessians_of_r_and_h_match_central_differences(name):
-    """The Lagrangian's Hessian (annex_b_batch._hessian, from the NumPy kinematics) with
-    multipliers (1, 0) and (0, 1), less the identity, against central differences of the
-    gradients dr, dh by Pinocchio's frame Jacobian (annex_b._Evaluator)."""
+    # The Lagrangian's Hessian with multipliers (1, 0) and (0, 1), less the identity.
     r = robot(name)
     chain = annex_b._chain(r.model, r.tool_frame)
     lo, hi = r.model.lowerPositionLimit, r.model.upperPositionLimit
@@ -95,11 +93,10 @@ def test_the_hessians_of_r_and_h_match_central_differences(name):
         q = rng.uniform(np.maximum(lo, -3.0), np.minimum(hi, 3.0))
         ev = annex_b._Evaluator(r.model, chain, q)
         x = q[chain.free]
-        lanes = annex_b_batch._Lanes(r.model, chain, annex_b_batch._joints(r.model, chain), q)
-        state = lanes.at(x[None])
+        ev.at(x)
         eye = np.eye(len(x))
-        Hr = annex_b_batch._hessian(state, np.array([[1.0, 0.0]]), chain.axis)[0] - eye  # d2r
-        Hh = annex_b_batch._hessian(state, np.array([[0.0, 1.0]]), chain.axis)[0] - eye  # d2h
+        Hr = ev.lagrangian_hessian(np.array([1.0, 0.0])) - eye  # d2r
+        Hh = ev.lagrangian_hessian(np.array([0.0, 1.0])) - eye  # d2h
         for i in range(len(x)):
             step = np.zeros(len(x))
             step[i] = FD_STEP
@@ -216,14 +213,11 @@ def test_a_maximizer_is_not_a_regular_point(monkeypatch):
     r = robot("ur10")
     model, chain = r.model, annex_b._chain(r.model, r.tool_frame)
     reach = annex_b._max_reach(model, chain, UR10_GUESS)
-    lanes = annex_b_batch._Lanes(model, chain, annex_b_batch._joints(model, chain), UR10_GUESS)
-    at_max = lanes.at(reach.poses[0][None])
-    assert not annex_b_batch._regular(at_max, np.zeros((1, 2)), chain.axis)[0]
+    ev = annex_b._Evaluator(model, chain, UR10_GUESS)
+    assert not annex_b._regular_minimum(ev, reach.poses[0], np.zeros(2))
     # The pose Newton returns passes it, with the multipliers of its KKT point.
-    bounds = annex_b._bounds(model, chain)
-    x = annex_b._newton(model, chain, UR10_GUESS, 0.5 * reach.R, bounds)
+    x = annex_b._newton(ev, UR10_GUESS[chain.free], 0.5 * reach.R, annex_b._bounds(model, chain))
     assert x is not None
-    at_x = lanes.at(x[None])
-    Jc = np.array([at_x.dr[0], at_x.dh[0]])
-    lam = -np.linalg.lstsq(Jc.T, x - UR10_GUESS[chain.free], rcond=None)[0]
-    assert annex_b_batch._regular(at_x, lam[None], chain.axis)[0]
+    ev.at(x)
+    lam = -np.linalg.lstsq(np.array([ev.dr, ev.dh]).T, x - UR10_GUESS[chain.free], rcond=None)[0]
+    assert annex_b._regular_minimum(ev, x, lam)

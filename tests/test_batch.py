@@ -49,7 +49,9 @@ TOLERANCE = 1e-8
 #: (its third bound variant: 20 steps batched, 19 scalar) differs by 1.38e-8 s between the
 #: engines, and the scalar engine's own figure moved by 1.37e-8 s when the Annex-B pose changed
 #: by round-off (~1e-15 rad, NumPy's kinematics in place of Pinocchio's in its Newton solve):
-#: at rtol 1e-8 a stopping time is reproducible to ~1.4e-8 s, not to 1e-8.
+#: at rtol 1e-8 a stopping time is reproducible to ~1.4e-8 s, not to 1e-8. (A batched study
+#: solves its poses over the lanes with NumPy's kinematics, the scalar engine case by case with
+#: Pinocchio's: the two engines' poses differ by such round-off.)
 STOP_TIME_TOLERANCE = 3e-8
 
 

@@ -107,7 +107,7 @@ def joint_chain(model: pin.Model) -> JointChain | None:
     )
 
 
-def numpy_placements(chain: JointChain, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _numpy_placements(chain: JointChain, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World placements of every joint at each row of ``qs`` (see :func:`joint_placements`).
 
     Joint by joint from the root, each step as a few matrix products over all samples at once:
@@ -141,7 +141,7 @@ def numpy_placements(chain: JointChain, qs: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _pinocchio_placements(model: pin.Model, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The same as :func:`numpy_placements`, by Pinocchio one sample at a time."""
+    """The same as :func:`_numpy_placements`, by Pinocchio one sample at a time."""
     data = model.createData()
     R = np.empty((len(qs), model.njoints, 3, 3))
     p = np.empty((len(qs), model.njoints, 3))
@@ -217,7 +217,7 @@ def joint_placements(model: pin.Model | Robot, qs: np.ndarray) -> tuple[np.ndarr
     if chain is None or len(flat) < NUMPY_FROM:
         R, p = _pinocchio_placements(model, flat)
     else:
-        R, p = numpy_placements(chain, flat)
+        R, p = _numpy_placements(chain, flat)
     return R.reshape(*lead, model.njoints, 3, 3), p.reshape(*lead, model.njoints, 3)
 
 
@@ -313,7 +313,7 @@ def compute_tool_motion(
     chain = _cached_chain(robot)
     if chain is None or len(qs) < NUMPY_FROM:
         return _pinocchio_motion(model, fid, qs, vs)
-    R, p = numpy_placements(chain, qs) if placements is None else placements
+    R, p = _numpy_placements(chain, qs) if placements is None else placements
     positions = _origins(R, p, frame)
     velocities = _frame_velocity(chain, R, p, int(frame.parentJoint), positions, vs)
     return positions, np.sqrt(np.einsum("ki,ki->k", velocities, velocities))
@@ -364,7 +364,7 @@ def body_motions(
 
     Spatial vectors are Pinocchio's (linear, angular), each body's in its joint's frame.
     Joint k's motion subspace in the world at the world's origin is (o_k x w_k, w_k) for a
-    revolute joint (w_k its axis in the world, o_k its origin; :func:`numpy_placements`), (w_k,
+    revolute joint (w_k its axis in the world, o_k its origin; :func:`_numpy_placements`), (w_k,
     0) for a prismatic one. From the root, with V_0 = 0 and C_0 = -g (the bias acceleration
     RNEA starts from, gravity included): V_k = V_parent + S_k v_k and C_k = C_parent + V_k x
     (S_k v_k) (k's subspace moves with its body). A joint j's body Jacobian has the columns S_k
@@ -399,7 +399,7 @@ def numpy_body_motions(
     chain: JointChain, qs: np.ndarray, vs: np.ndarray, joints: tuple[int, ...], gravity: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`body_motions` with NumPy over all states at once, joint by joint (views)."""
-    R, p = numpy_placements(chain, qs)
+    R, p = _numpy_placements(chain, qs)
     nv = vs.shape[1]
     axes = np.einsum("bjik,jk->ijb", R, chain.axes)  # every joint's axis in the world
     origins = np.ascontiguousarray(p.transpose(2, 1, 0))  # (3, njoints, B)

@@ -525,6 +525,7 @@ class _Evaluator:
         self._key: bytes | None = None
         self.r = self.h = 0.0
         self.dr = self.dh = np.zeros(len(chain.free))
+        self._lower = _lower_triangle(len(chain.free))
         self.at(self.q[chain.free])
 
     def at(self, x: np.ndarray) -> _Evaluator:
@@ -552,6 +553,33 @@ class _Evaluator:
         """r(q) at the last point [m]."""
         return self.r
 
+    def lagrangian_hessian(self, lam: np.ndarray) -> np.ndarray:
+        """I + lam[0] d2r + lam[1] d2h over the free joints at the last point, (n, n).
+
+        The Hessian of |x - g|^2 / 2 + lam . (r - target, h), in closed form from the frame
+        Jacobian's columns (no other kinematics): the free joints are a chain in velocity order
+        (all carry the tool frame), so with w_k the angular and v_k the linear column of joint
+        k (w_k = 0 for a prismatic joint), the tool origin p has d2p/dq_i dq_j =
+        w_min(i,j) x v_max(i,j): turning an inner joint turns the outer one's column with it;
+        moving an outer joint moves p about the inner axis. With a the joint-1 axis, u the unit
+        radial direction and P = I - a a^T: d2h = a . d2p and
+        d2r = u . d2p + ((P V)^T (P V) - dr dr^T) / r; the two projections of d2p are one,
+        along lam[0] u + lam[1] a.
+        """
+        V, W = self.Jf6[:3], self.Jf6[3:]
+        axis = self.chain.axis
+        k = lam[1] * axis
+        H = np.eye(V.shape[1])
+        if self.r > 0.0:
+            d = self.data.oMf[self.chain.frame].translation - self.chain.point
+            k = k + lam[0] * (d - float(axis @ d) * axis) / self.r
+            PV = V - np.outer(axis, axis @ V)
+            H += (lam[0] / self.r) * (PV.T @ PV - np.outer(self.dr, self.dr))
+        kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        M = (kx @ W).T @ V  # (i, j), i <= j: k . (w_i x v_j) = (k x w_i) . v_j
+        M[self._lower] = M.T[self._lower]
+        return H + M
+
     def column(self, i: int) -> np.ndarray:
         """Column ``i`` of the tool's world-aligned linear Jacobian at the last point, (3,)."""
         return np.asarray(self.J[:, i]).copy()
@@ -572,6 +600,14 @@ class _Evaluator:
     def residual(self, target: float | None) -> float:
         """Largest constraint residual at the last point [m]."""
         return max(abs(self.h), 0.0 if target is None else abs(self.r - target))
+
+
+def _lower_triangle(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices below the diagonal of an (n, n) matrix (cached: NumPy builds them slowly)."""
+    hit = _LOWER.get(n)
+    if hit is None:
+        hit = _LOWER[n] = np.tril_indices(n, -1)
+    return hit
 
 
 _Bounds = tuple[np.ndarray, np.ndarray]
@@ -719,7 +755,7 @@ def _solve_extension(model: pin.Model, chain: _Chain, e: float, guess: np.ndarra
     bounds = _bounds(model, chain)
     g = guess[chain.free]
     if e < 1.0:
-        x = _newton(model, chain, guess, target, bounds)
+        x = _newton(ev, g, target, bounds)
         if x is not None:
             return _pose(guess, chain, x)
     nearest_max = min(reach.poses, key=lambda x: float(np.linalg.norm(x - g)))
@@ -758,23 +794,79 @@ def _solve_extension(model: pin.Model, chain: _Chain, e: float, guess: np.ndarra
     return _pose(guess, chain, _nearest(ev, candidates, g, target, e, reach.R))
 
 
-def _newton(
-    model: pin.Model, chain: _Chain, guess: np.ndarray, target: float, bounds: _Bounds
-) -> np.ndarray | None:
-    """The pose nearest to ``guess`` on r = ``target``, h = 0, by Newton on the KKT system.
+def _newton(ev: _Evaluator, g: np.ndarray, target: float, bounds: _Bounds) -> np.ndarray | None:
+    """The pose nearest to ``g`` on r = ``target``, h = 0, by Newton on the KKT system; or None.
 
-    Minimizes |x - g|^2 / 2 subject to r(x) = target, h(x) = 0 by Newton's method on the KKT
-    system with the Lagrangian's exact Hessian, from the guess
-    (:func:`vtm_pin.scene.annex_b_batch.newton_many`, here for one lane: a study solves its
-    cases' poses together by the same iteration, with the same result to the bit).
+    Minimizes |x - g|^2 / 2 subject to c(x) = (r - target, h) = 0 by Newton's method on the
+    KKT system (x - g) + J_c^T lambda = 0, c(x) = 0, J_c = (dr; dh), with the Lagrangian's
+    Hessian I + lambda_r d2r + lambda_h d2h (:meth:`_Evaluator.lagrangian_hessian`, exact: the
+    convergence is quadratic), from the guess with lambda = 0 (the first step is the
+    minimum-norm step onto the linearized constraints, as SLSQP's). A step that moves a joint by
+    more than :data:`NEWTON_MAX_STEP` is shortened, then halved until the KKT residual's norm
+    falls. It stops once |c| <= :data:`NEWTON_CTOL` and the stationarity residual is
+    <= :data:`KKT_TOL`. The position limits are not constraints of this problem: an iterate
+    beyond one ends the search, so the pose returned is an interior local minimum of the
+    bounded problem, reached by a path within the limits.
 
     Returns:
         The free-joint values [rad or m], or None (then SLSQP decides) when Newton does not
-        reach a regular local minimum along a path within the position limits.
+        converge within :data:`NEWTON_MAXITER` iterations, when a step leaves the position
+        limits (the nearest pose may need an active limit), when the line search fails, or
+        when the point found is not a regular local minimum (dependent constraint gradients,
+        or a reduced Hessian that is not positive definite: a saddle or a farthest pose).
     """
-    from .annex_b_batch import newton_alone  # it builds on this module
+    n = len(g)
+    if n < 2:
+        return None  # two constraints need two free joints to be regular
+    K = np.zeros((n + 2, n + 2))  # the KKT matrix [[H, J_c^T], [J_c, 0]]
 
-    return newton_alone(model, chain, guess, target, bounds)
+    def kkt(x: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, float]:
+        ev.at(x)
+        K[n, :n], K[n + 1, :n] = ev.dr, ev.dh
+        F = np.concatenate([(x - g) + K[n:, :n].T @ lam, [ev.r - target, ev.h]])
+        return F, math.sqrt(float(F @ F))
+
+    x, lam = g.copy(), np.zeros(2)  # at the guess the multipliers are nil
+    F, norm = kkt(x, lam)
+    for _ in range(NEWTON_MAXITER):
+        if max(abs(F[n]), abs(F[n + 1])) <= NEWTON_CTOL and np.max(np.abs(F[:n])) <= KKT_TOL:
+            return x if _regular_minimum(ev, x, lam) else None
+        K[:n, :n] = ev.lagrangian_hessian(lam)
+        K[:n, n:] = K[n:, :n].T
+        try:
+            step = np.linalg.solve(K, -F)
+        except np.linalg.LinAlgError:
+            return None
+        alpha = min(1.0, NEWTON_MAX_STEP / max(float(np.max(np.abs(step[:n]))), _TINY))
+        for _ in range(NEWTON_HALVINGS):
+            F_new, norm_new = kkt(x + alpha * step[:n], lam + alpha * step[n:])
+            if norm_new <= (1.0 - 1e-4 * alpha) * norm:
+                break
+            alpha *= 0.5
+        else:
+            return None
+        x, lam, F, norm = x + alpha * step[:n], lam + alpha * step[n:], F_new, norm_new
+        if np.any(x < bounds[0]) or np.any(x > bounds[1]):
+            return None  # a path through a limit: the bounded search may end elsewhere
+    return None
+
+
+def _regular_minimum(ev: _Evaluator, x: np.ndarray, lam: np.ndarray) -> bool:
+    """Whether a KKT point ``x`` with multipliers ``lam`` is a regular local minimum.
+
+    Regular: the constraint gradients dr, dh are independent (singular-value ratio above
+    :data:`NEWTON_REGULAR`); a minimum: the Lagrangian's Hessian is positive definite on their
+    null space (smallest eigenvalue above :data:`NEWTON_REGULAR`), the second-order
+    sufficient condition.
+    """
+    ev.at(x)
+    Jc = np.array([ev.dr, ev.dh])
+    _, sv, Vt = np.linalg.svd(Jc)
+    if sv[-1] <= NEWTON_REGULAR * sv[0]:
+        return False
+    Z = Vt[len(sv) :].T  # a basis of the constraints' tangent space
+    H = ev.lagrangian_hessian(lam)
+    return Z.shape[1] == 0 or float(np.linalg.eigvalsh(Z.T @ H @ Z)[0]) > NEWTON_REGULAR
 
 
 def _feasible(ev: _Evaluator, x0: np.ndarray, target: float, bounds: _Bounds) -> np.ndarray:
@@ -863,3 +955,4 @@ _POLISHED = 1.0e-14
 _CHAIN_CACHE: OrderedDict[tuple[Any, ...], _Chain] = OrderedDict()
 _REACH_CACHE: OrderedDict[tuple[Any, ...], _Reach] = OrderedDict()
 _POSE_CACHE: OrderedDict[tuple[Any, ...], np.ndarray] = OrderedDict()
+_LOWER: dict[int, tuple[np.ndarray, np.ndarray]] = {}

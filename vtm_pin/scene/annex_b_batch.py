@@ -1,29 +1,36 @@
-"""Annex-B extension poses by Newton's method on the KKT system, over many cases at once.
+"""Annex-B extension poses of many cases at once: Newton's method over the lanes.
 
-The pose at reach r = e R nearest to a guess g (:mod:`vtm_pin.scene.annex_b`) minimizes
-|x - g|^2 / 2 subject to r(x) = e R and h(x) = 0 (the plane). :func:`newton_many` solves it by
-Newton's method on its KKT system for many targets at once, as array operations over the
-lanes, with the joints' placements from NumPy
-(:func:`vtm_pin.physics.kinematics.numpy_placements`). A study's cases share the kinematics, the
-tool frame and the guess and differ in e: :func:`solve_poses` solves them together and keeps
-each pose in Annex B's pose cache, where the cases' builds find it (~0.3 against ~1.3 ms a UR10
-pose one by one). A single case takes the same iteration for one lane
-(:func:`newton_alone`): a lane's arithmetic does not depend on the other lanes, so a case's pose
-is the same to the bit whether it was solved alone or in a study, with either engine
-(``tests/test_annex_b_batch.py``).
+A study varies the extension e of one scenario: its cases share the robot's kinematics, the
+tool frame and the guess pose, and differ in the reach asked for, r = e R. Case by case,
+:func:`vtm_pin.scene.annex_b.compute_test_state` solves each pose by Newton's method on the
+KKT system of the pose problem (``annex_b._newton``, with Pinocchio's frame Jacobian at each
+iterate): ~1.2 ms a UR10 case, more than half of a study case's build. :func:`solve_poses`
+takes the same iteration for all the extensions at once, as array operations over the lanes,
+with the joints' placements from NumPy (:func:`vtm_pin.physics.kinematics.joint_placements`'s
+arithmetic) in place of Pinocchio's, and keeps each pose it finds in Annex B's pose cache, where
+the cases' builds find it.
+
+The iteration is ``_newton``'s, lane by lane: the same start (the guess, nil multipliers), the
+same exact Hessian of the Lagrangian, step limit, line search, stopping tests, the same test
+of a regular local minimum, and the same refusals (a step out of the limits, a failed line
+search, no convergence). A lane refused is not cached: its case's build solves it on its own
+(Newton again, then SLSQP). The poses agree with ``_newton``'s to round-off
+(``tests/test_annex_b_batch.py``); a case's figures therefore do not depend on whether its pose
+was solved with others or alone, beyond round-off. A stopping time can amplify that round-off to
+~1e-8 s at rtol 1e-8 (a step accepted or rejected; ``tests/test_batch.py``,
+``STOP_TIME_TOLERANCE``). The iteration is not used for a single case: one lane's NumPy
+operations cost ~3x Pinocchio's Newton (a scalar-engine study's build measured 9.1 against
+4.7 ms a case).
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-import pinocchio as pin
 
-from ..physics.kinematics import JointChain, joint_chain, numpy_placements
+from ..physics.kinematics import JointChain, joint_chain, joint_placements
 from ..physics.robot import Robot
 from . import annex_b as ab
 
@@ -66,8 +73,9 @@ class _State:
 class _Lanes:
     """r, h and their gradients at many free-joint values, by NumPy kinematics."""
 
-    def __init__(self, model: pin.Model, chain: ab._Chain, joints: JointChain, guess: np.ndarray):
-        self.chain, self.joints, self.guess = chain, joints, guess
+    def __init__(self, robot: Robot, chain: ab._Chain, joints: JointChain, guess: np.ndarray):
+        self.robot, self.chain, self.joints, self.guess = robot, chain, joints, guess
+        model = robot.model
         frame = model.frames[chain.frame]
         self.parent = int(frame.parentJoint)
         self.offset = np.asarray(frame.placement.translation, dtype=float)
@@ -81,7 +89,7 @@ class _Lanes:
         chain = self.chain
         qs = np.repeat(self.guess[None, :], len(X), axis=0)
         qs[:, chain.free] = X
-        R, p = numpy_placements(self.joints, qs)  # (B, njoints, 3, 3), (B, njoints, 3)
+        R, p = joint_placements(self.robot, qs)  # (B, njoints, 3, 3), (B, njoints, 3)
         tool = p[:, self.parent] + R[:, self.parent] @ self.offset
         J6 = np.zeros((len(X), 6, len(chain.free)))
         for c, j in enumerate(self.free_joints):
@@ -103,17 +111,7 @@ class _Lanes:
 
 
 def _hessian(s: _State, lam: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """The Lagrangian's Hessian I + lam[0] d2r + lam[1] d2h at every lane, shape (B, n, n).
-
-    The Hessian of |x - g|^2 / 2 + lam . (r - target, h), in closed form from the frame
-    Jacobian's columns (no other kinematics): the free joints are a chain in velocity order
-    (all carry the tool frame), so with w_k the angular and v_k the linear column of joint k
-    (w_k = 0 for a prismatic joint), the tool origin p has d2p/dq_i dq_j = w_min(i,j) x
-    v_max(i,j): turning an inner joint turns the outer one's column with it; moving an outer
-    joint moves p about the inner axis. With a the joint-1 axis, u the unit radial direction
-    and P = I - a a^T: d2h = a . d2p and d2r = u . d2p + ((P V)^T (P V) - dr dr^T) / r; the
-    two projections of d2p are one, along lam[0] u + lam[1] a.
-    """
+    """``annex_b._Evaluator.lagrangian_hessian`` at every lane, shape (B, n, n)."""
     V, W = s.J6[:, :3], s.J6[:, 3:]
     count, n = len(lam), V.shape[2]
     positive = s.r > 0.0
@@ -125,7 +123,7 @@ def _hessian(s: _State, lam: np.ndarray, axis: np.ndarray) -> np.ndarray:
         PV.transpose(0, 2, 1) @ PV - s.dr[:, :, None] * s.dr[:, None, :]
     )
     M = np.cross(k[:, :, None], W, axis=1).transpose(0, 2, 1) @ V  # (k x w_i) . v_j
-    lower = _lower_triangle(n)
+    lower = ab._lower_triangle(n)
     M[:, lower[0], lower[1]] = M[:, lower[1], lower[0]]
     return H + M
 
@@ -146,13 +144,7 @@ def _residual(
 
 
 def _regular(s: _State, lam: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """Whether each lane's KKT point is a regular local minimum, shape (B,) bool.
-
-    Regular: the constraint gradients dr, dh are independent (singular-value ratio above
-    ``NEWTON_REGULAR``); a minimum: the Lagrangian's Hessian is positive definite on their
-    null space (smallest eigenvalue above ``NEWTON_REGULAR``), the second-order sufficient
-    condition.
-    """
+    """``annex_b._regular_minimum`` at every lane, shape (B,) bool."""
     Jc = np.stack([s.dr, s.dh], axis=1)
     _, sv, Vt = np.linalg.svd(Jc)
     independent = sv[:, -1] > ab.NEWTON_REGULAR * sv[:, 0]
@@ -197,26 +189,7 @@ class _Iterates:
 def newton_many(
     lanes: _Lanes, g: np.ndarray, targets: np.ndarray, bounds: ab._Bounds
 ) -> list[np.ndarray | None]:
-    """The pose nearest to ``g`` on r = target, h = 0 for each target [m], or None.
-
-    Minimizes |x - g|^2 / 2 subject to c(x) = (r - target, h) = 0 by Newton's method on the
-    KKT system (x - g) + J_c^T lambda = 0, c(x) = 0, J_c = (dr; dh), with the Lagrangian's
-    exact Hessian (:func:`_hessian`: the convergence is quadratic), from the guess with
-    lambda = 0 (the first step is the minimum-norm step onto the linearized constraints, as
-    SLSQP's). A step that moves a joint by more than ``NEWTON_MAX_STEP`` is shortened, then
-    halved until the KKT residual's norm falls. A lane stops once |c| <= ``NEWTON_CTOL`` and
-    the stationarity residual is <= ``KKT_TOL``. The position limits are not constraints of
-    this problem: an iterate beyond one ends the lane's search, so a pose returned is an
-    interior local minimum of the bounded problem, reached by a path within the limits.
-    Lanes that are done leave the iteration; each lane's arithmetic is its own.
-
-    Returns:
-        Per target, the free-joint values [rad or m], or None (then SLSQP decides) when Newton
-        does not converge within ``NEWTON_MAXITER`` iterations, when a step leaves the position
-        limits (the nearest pose may need an active limit), when the line search fails, or
-        when the point found is not a regular local minimum (dependent constraint gradients,
-        or a reduced Hessian that is not positive definite: a saddle or a farthest pose).
-    """
+    """``annex_b._newton`` for each target reach [m] at once: free-joint values or None."""
     n, axis = len(g), lanes.chain.axis
     out: list[np.ndarray | None] = [None] * len(targets)
     X = np.repeat(g[None, :], len(targets), axis=0)
@@ -282,17 +255,6 @@ def _step(
     it.keep(accepted & inside)
 
 
-def newton_alone(
-    model: pin.Model, chain: ab._Chain, guess: np.ndarray, target: float, bounds: ab._Bounds
-) -> np.ndarray | None:
-    """:func:`newton_many` for one target reach [m]: the free-joint values, or None."""
-    joints = _joints(model, chain)
-    if joints is None or len(chain.free) < 2:
-        return None  # two constraints need two free joints to be regular
-    lanes = _Lanes(model, chain, joints, guess)
-    return newton_many(lanes, guess[chain.free], np.array([target]), bounds)[0]
-
-
 def solve_poses(
     robot: Robot, tool_frame: str, q_guess: np.ndarray, extensions: Iterable[float]
 ) -> int:
@@ -317,8 +279,8 @@ def solve_poses(
             maximum reach; the cases' builds report the same).
     """
     model = robot.model
+    joints = joint_chain(model)
     chain = ab._chain(model, tool_frame)
-    joints = _joints(model, chain)
     guess = ab._clip(model, ab._as_q(model, q_guess))
     wanted = sorted(
         {
@@ -331,7 +293,7 @@ def solve_poses(
         return 0
     reach = ab._max_reach(model, chain, guess)
     es = np.array(wanted)
-    lanes = _Lanes(model, chain, joints, guess)
+    lanes = _Lanes(robot, chain, joints, guess)
     poses = newton_many(lanes, guess[chain.free], es * reach.R, ab._bounds(model, chain))
     solved = 0
     for e, x in zip(wanted, poses, strict=True):
@@ -340,26 +302,3 @@ def solve_poses(
             ab._remember(ab._POSE_CACHE, key, ab._pose(guess, chain, x), ab.POSE_CACHE_SIZE)
             solved += 1
     return solved
-
-
-def _joints(model: pin.Model, chain: ab._Chain) -> JointChain | None:
-    """The model's joints as arrays (cached per kinematics), or None.
-
-    None for a joint type NumPy does not compute: Newton is then not taken, SLSQP decides.
-    """
-    key = chain.key
-    if key not in _JOINTS:
-        ab._remember(_JOINTS, key, joint_chain(model), ab.REACH_CACHE_SIZE)
-    return ab._recall(_JOINTS, key)
-
-
-def _lower_triangle(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Indices below the diagonal of an (n, n) matrix (cached: NumPy builds them slowly)."""
-    hit = _LOWER.get(n)
-    if hit is None:
-        hit = _LOWER[n] = np.tril_indices(n, -1)
-    return hit
-
-
-_JOINTS: OrderedDict[tuple[Any, ...], JointChain | None] = OrderedDict()
-_LOWER: dict[int, tuple[np.ndarray, np.ndarray]] = {}
