@@ -33,7 +33,7 @@ from ..physics.arm_points import max_displacement, point_speeds, sample_arm_poin
 from ..physics.kinematics import compute_tool_jacobian
 from ..standards.bounds import derived_uppers, describe, upper_bounds, variants
 from .flags import Flag, case_flags, tool_drop
-from .stopping import StoppingReport
+from .stopping import StoppingReport, ToolMotion
 
 #: Flags meaning the arm is not held: it collapses, or slides on once it moves.
 NOT_HELD = ("brake_cannot_hold", "brake_cannot_stop", "drive_cannot_hold")
@@ -247,9 +247,15 @@ def bound_variants(scenario: Any, loader: Any = None) -> list[Any]:
 
 
 def bounded(
-    scenario: Any, figures: StopFigures, runs: Sequence[tuple[Any, SimulationResult]]
+    scenario: Any,
+    figures: StopFigures,
+    runs: Sequence[tuple[Any, SimulationResult]],
+    motions: Sequence[ToolMotion | None] = (),
 ) -> StopFigures:
     """``figures`` with their upper bounds, from the runs of :func:`bound_variants`' scenarios.
+
+    ``motions``: the runs' tool motions, if they were computed together
+    (:func:`vtm_pin.outputs.stopping.tool_motions`); each computed here if None.
 
     A worn state whose brakes cannot hold the load is flagged (``worn_brake_cannot_hold``):
     its bound describes a collapsing arm. A variant that has not stopped by the end of the run
@@ -259,8 +265,10 @@ def bounded(
     from .stopping import compute_stopping_report
 
     measured = []
-    for variant, result in runs:
-        report = compute_stopping_report(variant.robot, result, variant.brakes, variant.tool_frame)
+    for (variant, result), motion in zip(runs, motions or [None] * len(runs), strict=True):
+        report = compute_stopping_report(
+            variant.robot, result, variant.brakes, variant.tool_frame, motion
+        )
         measured.append(stop_figures(variant, result, report))
     upper = upper_bounds(
         figures.metrics, [m.metrics for m in measured], scenario.bounds, scenario.uncertainty

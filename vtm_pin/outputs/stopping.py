@@ -10,6 +10,7 @@ the motion before the brakes engage.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,6 +21,7 @@ from ..physics.kinematics import (
     compute_tool_jacobian,
     compute_tool_motion,
     joint_placements,
+    kinematics_key,
 )
 from ..physics.robot import Robot
 from ..physics.stop import DEFAULT_REST_SPEED
@@ -108,11 +110,79 @@ class StoppingReport:
         return tuple(j.joint for j in self.joints if not j.stopped)
 
 
+@dataclass(frozen=True)
+class ToolMotion:
+    """The motion a stopping report reads, from the stop signal's sample on.
+
+    Attributes:
+        placements: The joints' world placements ``(R, p)`` at those samples
+            (:func:`vtm_pin.physics.kinematics.joint_placements`): rotations, shape
+            (k, njoints, 3, 3), and origins [m], shape (k, njoints, 3).
+        path: The tool frame's origin [m], shape (k, 3).
+        speed: Its speed [m/s], shape (k,).
+    """
+
+    placements: tuple[np.ndarray, np.ndarray]
+    path: np.ndarray
+    speed: np.ndarray
+
+
+def signal_row(result: SimulationResult) -> int:
+    """The first sample at or after the stop signal (0 for a run without a stop)."""
+    t_signal = result.stop.t if result.stop is not None else 0.0
+    return int(np.argmax(result.t >= t_signal))
+
+
+def tool_motion(robot: Robot, result: SimulationResult, tool_frame: str | None) -> ToolMotion:
+    """The :class:`ToolMotion` of one run, from its stop signal on."""
+    i0 = signal_row(result)
+    return _motion(robot, result.q[i0:], result.v[i0:], tool_frame)
+
+
+def _motion(robot: Robot, q: np.ndarray, v: np.ndarray, tool_frame: str | None) -> ToolMotion:
+    """The :class:`ToolMotion` of samples (q [rad], v [rad/s]), shape (k, n)."""
+    placements = joint_placements(robot, q)
+    path, speed = compute_tool_motion(robot, q, v, tool_frame, placements)
+    return ToolMotion(placements, path, speed)
+
+
+def tool_motions(
+    runs: Sequence[tuple[Robot, SimulationResult, str | None]],
+) -> list[ToolMotion]:
+    """The :class:`ToolMotion` of many runs (robot, result, tool frame), in their order.
+
+    Runs whose robots place their joints alike (:func:`~vtm_pin.physics.kinematics.
+    kinematics_key`: payload variants of one arm) and whose tool frames sit alike are computed
+    together: their samples stacked, one pass of the NumPy forward kinematics for all (a
+    study case has ~80 samples, where one pass per case costs mostly its fixed overhead). The
+    kinematics are sample by sample, so each run's motion is its own pass's to round-off.
+    """
+    rows = [signal_row(result) for _, result, _ in runs]
+    groups: dict[tuple[object, ...], list[int]] = {}
+    for r, (robot, _, frame) in enumerate(runs):
+        tool = robot.model.frames[robot.model.getFrameId(frame or robot.tool_frame)]
+        key = (kinematics_key(robot), int(tool.parentJoint), tool.placement.translation.tobytes())
+        groups.setdefault(key, []).append(r)
+    out: list[ToolMotion | None] = [None] * len(runs)
+    for members in groups.values():
+        robot, _, frame = runs[members[0]]
+        q = np.concatenate([runs[r][1].q[rows[r] :] for r in members])
+        v = np.concatenate([runs[r][1].v[rows[r] :] for r in members])
+        stacked = _motion(robot, q, v, frame)
+        (R, p), path, speed = stacked.placements, stacked.path, stacked.speed
+        ends = np.cumsum([len(runs[r][1].t) - rows[r] for r in members])
+        for r, stop in zip(members, ends, strict=True):
+            mine = slice(int(stop) - len(runs[r][1].t) + rows[r], int(stop))
+            out[r] = ToolMotion((R[mine], p[mine]), path[mine], speed[mine])
+    return [m for m in out if m is not None]
+
+
 def compute_stopping_report(
     robot: Robot,
     result: SimulationResult,
     brakes: tuple[Brake, ...] = (),
     tool_frame: str | None = None,
+    motion: ToolMotion | None = None,
 ) -> StoppingReport:
     """Derive the stopping report of a simulated stop (or of a run with prescribed locks).
 
@@ -121,16 +191,24 @@ def compute_stopping_report(
         result: The simulation.
         brakes: Its brakes (for the static limits of the holding margin).
         tool_frame: Frame to follow; the robot's tool frame by default.
+        motion: The run's :class:`ToolMotion` (of this robot and tool frame), if it was
+            computed with other runs' (:func:`tool_motions`); computed here if None.
+
+    Raises:
+        ValueError: ``motion`` has not one sample per sample of the run from its signal on.
     """
     t_signal = result.stop.t if result.stop is not None else 0.0
-    i0 = int(np.argmax(result.t >= t_signal))
+    i0 = signal_row(result)
     latch_time, surge, lock_impulse = _event_figures(robot, result, t_signal)
     peak_hold, margin = _holding_figures(robot, result, brakes)
-    q, v = result.q[i0:], result.v[i0:]
+    v = result.v[i0:]
     # The joints' placements from the signal on, once: the tool's path here, the arm's points
     # in stop_figures (kept in the report).
-    placements = joint_placements(robot, q)
-    path, speed = compute_tool_motion(robot, q, v, tool_frame, placements)
+    if motion is None:
+        motion = tool_motion(robot, result, tool_frame)
+    elif len(motion.path) != len(v):
+        raise ValueError(f"motion has {len(motion.path)} samples; the run {len(v)} from its signal")
+    placements, path, speed = motion.placements, motion.path, motion.speed
     tcp_surge = 0.0
     events = result.events
     if events:

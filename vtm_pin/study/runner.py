@@ -138,7 +138,8 @@ def run_cases(
         engine: ``batched`` (cases of one robot advance together, see
             :mod:`vtm_pin.core.batch`) or ``scalar``.
         store: A study's output folder: each record is written into its ``cases`` folder as
-            soon as its case is done (a batch's first cases are kept if it is interrupted).
+            soon as its case's report is made, with up to :data:`REPORT_CASES` others (the
+            cases done are kept if it is interrupted).
             A batched case's ``simulate`` time is then the batch's time since its previous
             case ended: these add up to the batch's time.
 
@@ -254,6 +255,12 @@ class _Poses:
         return self.seconds / len(self.cases) if case in self.cases else 0.0
 
 
+#: Finished cases whose reports are made together (:func:`_run_group`): their runs' tool
+#: motions in one pass (:func:`vtm_pin.outputs.stopping.tool_motions`); at most this many
+#: finished cases wait for their records.
+REPORT_CASES = 32
+
+
 def _run_group(
     transition: str,
     items: Sequence[tuple[dict[str, Any], Any, list[Any]]],
@@ -262,20 +269,28 @@ def _run_group(
 ) -> None:
     """Run cases of one transition rule, each with its bounds' variants, in one batch.
 
-    A case's record is completed and kept as soon as its runs have ended.
+    A case's record is completed and kept once its runs have ended, with the next finished
+    cases' up to :data:`REPORT_CASES` of them (or when the batch ends or is interrupted).
     """
     from ..core.batch import MIN_LANES, run_many
 
     runs = [(k, s) for k, (_, scenario, extra) in enumerate(items) for s in (scenario, *extra)]
-    ended: list[list[Any]] = [[] for _ in items]  # per case: (scenario, result, reason, share)
+    ended: list[list[Any]] = [[] for _ in items]  # per case: (run, scenario, result, reason, share)
     sizes = [1 + len(extra) for _, _, extra in items]
+    waiting: list[int] = []  # finished cases, their records not yet made
+
+    def flush() -> None:
+        done = [(k, sorted(ended[k], key=lambda e: e[0])) for k in waiting]
+        waiting.clear()
+        _complete_many(items, done, engine, keep)
 
     def on_done(i: int, result: Any, reason: str | None, share: Any) -> None:
         k, scenario = runs[i]
         ended[k].append((i, scenario, result, reason, share))
         if len(ended[k]) == sizes[k]:
-            _complete(items[k][0], items[k][1], sorted(ended[k], key=lambda e: e[0]), engine)
-            keep(items[k][0])
+            waiting.append(k)
+            if len(waiting) >= REPORT_CASES:
+                flush()
 
     try:
         run_many(
@@ -289,6 +304,7 @@ def _run_group(
     except OutputError:
         raise
     except Exception as exc:  # a bug: every case not yet done fails with it
+        flush()
         for k, (record, _, _) in enumerate(items):
             if len(ended[k]) < sizes[k]:
                 _record_error(record, exc)
@@ -296,18 +312,67 @@ def _run_group(
                 record["wall_time"] = sum(record["timing"].values())
                 keep(record)
         return
+    except BaseException:  # interrupted: the finished cases are kept
+        flush()
+        raise
+    flush()
+
+
+def _complete_many(
+    items: Sequence[tuple[dict[str, Any], Any, list[Any]]],
+    done: Sequence[tuple[int, Sequence[tuple[Any, ...]]]],
+    engine: str,
+    keep: Callable[[dict[str, Any]], None],
+) -> None:
+    """Fill and keep the records of finished cases ``(k, its ended runs)``.
+
+    Their runs' tool motions are computed in one pass; its time is shared out equally over
+    the cases' ``report`` times. Should that pass fail, each report computes its own (and
+    records the error, if it is the case's).
+    """
+    from ..core.results import SimulationResult
+    from ..outputs.stopping import tool_motions
+
+    runs = [e for _, ended in done for e in ended if isinstance(e[2], SimulationResult)]
+    begin = time.perf_counter()
+    try:
+        found = tool_motions([(e[1].robot, e[2], e[1].tool_frame) for e in runs])
+        motions = {e[0]: m for e, m in zip(runs, found, strict=True)}
+    except Exception:  # each report computes its own
+        motions = {}
+    share = (time.perf_counter() - begin) / max(1, len(done))
+    for k, ended in done:
+        _complete(items[k][0], items[k][1], ended, engine, motions, share)
+        keep(items[k][0])
 
 
 def _complete(
-    record: dict[str, Any], scenario: Any, ended: Sequence[tuple[Any, ...]], engine: str
+    record: dict[str, Any],
+    scenario: Any,
+    ended: Sequence[tuple[Any, ...]],
+    engine: str,
+    motions: Mapping[int, Any] | None = None,
+    share: float = 0.0,
 ) -> None:
-    """Fill a case's record from its runs (the case's own first, then its bounds' variants)."""
-    (_, _, result, reason, share), *variants = ended
+    """Fill a case's record from its runs (the case's own first, then its bounds' variants).
+
+    ``motions``: tool motions by run (:func:`vtm_pin.outputs.stopping.tool_motions`), if
+    computed with other cases'; ``share``: this case's part of their time [s].
+    """
+    motions = motions or {}
+    (_, _, result, reason, share_of_batch), *variants = ended
     record["engine"] = "scalar" if reason is not None else "batched"
     record["fallback"] = reason if engine == "batched" else None
-    if share is not None:
-        record["engine_split"] = share
-    _record_result(record, scenario, result, [(v[1], v[2]) for v in variants])
+    if share_of_batch is not None:
+        record["engine_split"] = share_of_batch
+    _record_result(
+        record,
+        scenario,
+        result,
+        [(v[1], v[2]) for v in variants],
+        [motions.get(e[0]) for e in ended],
+    )
+    record["timing"]["report"] += share
     record["wall_time"] = sum(record["timing"].values())
 
 
@@ -347,11 +412,17 @@ _LAST_BASE: dict[str, tuple[Mapping[str, Any], bool]] = {}
 
 
 def _record_result(
-    record: dict[str, Any], scenario: Any, result: Any, variants: Sequence[tuple[Any, Any]] = ()
+    record: dict[str, Any],
+    scenario: Any,
+    result: Any,
+    variants: Sequence[tuple[Any, Any]] = (),
+    motions: Sequence[Any] = (),
 ) -> None:
     """Fill a case's record from its simulation (or the error that ended it).
 
     ``variants``: the runs its bounds need (scenario, result or error), if it asks for bounds.
+    ``motions``: the tool motions of the case's run and then its variants' (None: computed
+    here), if they were computed with other cases' (:func:`_complete_many`).
     """
     from ..outputs.figures import bounded, describe_flags, stop_figures
     from ..outputs.stopping import compute_stopping_report
@@ -363,15 +434,16 @@ def _record_result(
             raise scenario_failure(scenario, result)
         if scenario.stop is None:
             raise StudyError(scenario.source, "stop", "a study case needs a stop to measure")
+        motion, *more = motions or [None] * (1 + len(variants))
         report = compute_stopping_report(
-            scenario.robot, result, scenario.brakes, scenario.tool_frame
+            scenario.robot, result, scenario.brakes, scenario.tool_frame, motion
         )
         figures = stop_figures(scenario, result, report)
         if variants:
             failed = next((r for _, r in variants if isinstance(r, Exception)), None)
             if failed is not None:
                 raise scenario_failure(scenario, failed)
-            figures = bounded(scenario, figures, variants)
+            figures = bounded(scenario, figures, variants, more)
             record["bounds"] = dict(figures.bounds)
         record.update(
             status=figures.status,

@@ -1,0 +1,133 @@
+"""Stopping reports made together (issue 27): many runs' tool motions in one pass.
+
+A study's runner makes the reports of up to ``runner.REPORT_CASES`` finished cases together:
+their runs' joint placements and tool paths are one NumPy forward-kinematics pass
+(:func:`vtm_pin.outputs.stopping.tool_motions`) instead of one pass per run, whose fixed
+overhead was most of its cost at a study case's ~80 samples.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SCENARIOS
+
+from vtm_pin.core.batch import run_many
+from vtm_pin.core.results import SimulationResult
+from vtm_pin.outputs.stopping import (
+    compute_stopping_report,
+    signal_row,
+    tool_motion,
+    tool_motions,
+)
+from vtm_pin.physics.robot import RobotCache
+from vtm_pin.scene.scenario import build_scenario, load_scenario
+from vtm_pin.study import runner
+from vtm_pin.study.cases import find_study, load_study, resolve_case
+from vtm_pin.study.runner import CaseTask, run_cases
+
+#: [m, -] A run's motion from the stacked pass against its own: the same products sample by
+#: sample, so equal but for a BLAS kernel that blocks a longer stack otherwise (~1e-16 a
+#: product; measured: equal to the bit on these runs).
+ROUND_OFF = 1e-12
+
+
+def envelope_cases(count: int) -> list[CaseTask]:
+    study = load_study(find_study("ur10_envelope"))
+    chosen = study.cases()[:count]
+    return [
+        CaseTask(study.base, str(study.scenario.parent), str(study.scenario), "t", c)
+        for c in chosen
+    ]
+
+
+@pytest.fixture(scope="module")
+def mixed_runs():
+    """UR10 envelope cases (several payload classes: one kinematics, several models), one with
+    another tool frame, and the UR5 and pendulum scenarios (other kinematics)."""
+    robots = RobotCache()
+    built = [
+        build_scenario(
+            resolve_case(t.base, t.case.values),
+            source="t",
+            base_dir=Path(t.base_dir),
+            name="t",
+            loader=robots,
+        )
+        for t in envelope_cases(8)
+    ]
+    built += [
+        load_scenario(SCENARIOS / f"{name}.yaml") for name in ("ur5_estop_cat0", "pendulum3r")
+    ]
+    outcome = run_many([s.problem for s in built], [s.integrator for s in built])
+    runs = [
+        (s.robot, r, s.tool_frame)
+        for s, r in zip(built, outcome.results, strict=True)
+        if isinstance(r, SimulationResult)
+    ]
+    robot, result, _ = runs[1]
+    elbow = next(f.name for f in robot.model.frames if f.parentJoint == 3)  # another joint's
+    runs.insert(2, (robot, result, elbow))
+    return built, runs
+
+
+def test_many_runs_motions_are_each_runs_own(mixed_runs) -> None:
+    _, runs = mixed_runs
+    assert len({id(robot) for robot, _, _ in runs}) >= 4  # several models in one call
+    together = tool_motions(runs)
+    assert len(together) == len(runs)
+    for (robot, result, frame), motion in zip(runs, together, strict=True):
+        own = tool_motion(robot, result, frame)
+        assert len(motion.path) == len(result.t) - signal_row(result)
+        ours = (motion.path, motion.speed, *motion.placements)
+        for a, b in zip(ours, (own.path, own.speed, *own.placements), strict=True):
+            assert a.shape == b.shape
+            np.testing.assert_allclose(a, b, rtol=0.0, atol=ROUND_OFF)
+
+
+def test_another_tool_frame_is_followed_apart(mixed_runs) -> None:
+    _, runs = mixed_runs
+    together = tool_motions(runs)
+    assert runs[1][1] is runs[2][1] and runs[1][2] != runs[2][2]
+    assert np.max(np.abs(together[1].path - together[2].path)) > 1e-3  # another point
+    np.testing.assert_allclose(together[1].placements[1], together[2].placements[1], atol=0.0)
+
+
+def test_a_report_refuses_a_motion_of_another_run(mixed_runs) -> None:
+    built, runs = mixed_runs
+    robot, result, frame = runs[0]
+    other = tool_motion(*runs[-1])
+    with pytest.raises(ValueError, match="samples"):
+        compute_stopping_report(robot, result, built[0].brakes, frame, other)
+
+
+def strip(records: list[dict]) -> list[dict]:
+    return [
+        {k: v for k, v in r.items() if k not in ("timing", "wall_time", "engine_split")}
+        for r in records
+    ]
+
+
+def test_study_records_do_not_depend_on_how_many_reports_are_made_together(monkeypatch) -> None:
+    tasks = envelope_cases(10)
+    monkeypatch.setattr(runner, "REPORT_CASES", 1)
+    alone = run_cases(tasks)
+    monkeypatch.setattr(runner, "REPORT_CASES", 4)  # 4, 4 and the batch's last 2
+    together = run_cases(tasks)
+    assert all(r["status"] == "ok" for r in together)
+    assert strip(together) == strip(alone)
+    assert all(r["timing"]["report"] > 0.0 for r in together)
+
+
+def test_a_failing_joint_pass_fails_no_case(monkeypatch) -> None:
+    """Making the reports together is an optimisation: if it raises, each report makes its own."""
+    tasks = envelope_cases(6)
+    working = run_cases(tasks)
+
+    def broken(runs):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr("vtm_pin.outputs.stopping.tool_motions", broken)
+    assert strip(run_cases(tasks)) == strip(working)
