@@ -27,10 +27,11 @@ from vtm_pin.physics.arm_points import (
     GEOMETRY,
     SEGMENTS,
     max_displacement,
+    max_displacements,
     point_positions,
     sample_arm_points,
 )
-from vtm_pin.physics.kinematics import NUMPY_FROM, compute_tool_positions
+from vtm_pin.physics.kinematics import NUMPY_FROM, compute_tool_positions, joint_placements
 from vtm_pin.physics.payload import Payload, attach_payload
 from vtm_pin.physics.robot import load_robot
 
@@ -324,3 +325,46 @@ def test_the_bounded_search_finds_the_largest_displacement_of_all_points_and_sam
             assert result.sample <= count // 2  # the first sample of the tie
         if trial == 8:
             assert (result.distance, result.index, result.sample) == (0.0, 0, 0)
+
+
+@pytest.mark.parametrize("name", ["ur10", "panda"])
+def test_many_trajectories_at_once_find_what_each_finds_alone(name):
+    """max_displacements (a study's reports, together) against max_displacement one by one
+    and against every point at every sample, on the random walks above in one call, with a
+    trajectory of one sample and the tie of the planar arm's test: the same distance to
+    round-off (1e-12 relative, 1e-14 m), the same point and sample (its tie rule included)."""
+    r = robot(name)
+    points = sample_arm_points(r, per_link=PER_LINK)
+    rng = np.random.default_rng(28)
+    walks = []
+    for trial in range(12):
+        count = 1 if trial == 5 else int(rng.integers(2, 120))
+        scale = [1e-6, 1e-3, 0.05][trial % 3]
+        q = rng.uniform(-2.0, 2.0, r.nv) + np.cumsum(rng.normal(0, scale, (count, r.nv)), axis=0)
+        if trial % 4 == 1:
+            q[count // 2 :] = q[count // 2]
+        if trial == 8:
+            q[:] = q[0]
+        walks.append(q)
+    placements = [joint_placements(r, q) for q in walks]
+    together = max_displacements(points, placements)
+    assert len(together) == len(walks)
+    for trial, (q, arm) in enumerate(zip(walks, together, strict=True)):
+        alone = max_displacement(r, points, q, swept=False, placements=placements[trial])
+        moved = brute_force_displacements(r, points, q)
+        assert arm.distance == pytest.approx(alone.distance, rel=1e-12, abs=1e-14), trial
+        assert arm.distance == pytest.approx(moved.max(), rel=1e-12, abs=1e-14), trial
+        assert (arm.index, arm.sample, arm.link) == (alone.index, alone.sample, alone.link)
+
+
+def test_many_at_once_name_the_first_sample_and_point_of_a_tie():
+    r = robot("planar_3r")
+    points = sample_arm_points(r, per_link=PER_LINK)
+    there, back = np.linspace(0.0, math.pi, 40), np.linspace(math.pi, 0.0, 40)
+    q = np.zeros((118, 3))
+    q[:, 0] = np.concatenate([there, back[1:], there[1:]])
+    still = np.zeros((5, 3))
+    tie, rest = max_displacements(points, [joint_placements(r, q), joint_placements(r, still)])
+    assert tie.distance == pytest.approx(6.0, abs=EXACT)
+    assert tie.sample == 39 and tie.index == int(np.flatnonzero(points.link == 2)[-1])
+    assert (rest.distance, rest.index, rest.sample) == (0.0, 0, 0)

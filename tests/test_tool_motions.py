@@ -1,9 +1,10 @@
 """Stopping reports made together (issue 27): many runs' tool motions in one pass.
 
 A study's runner makes the reports of up to ``runner.REPORT_CASES`` finished cases together:
-their runs' joint placements and tool paths are one NumPy forward-kinematics pass
-(:func:`vtm_pin.outputs.stopping.tool_motions`) instead of one pass per run, whose fixed
-overhead was most of its cost at a study case's ~80 samples.
+their runs' joint placements and tool paths are one NumPy forward-kinematics pass, and their
+arms' largest displacements one search (:func:`vtm_pin.outputs.stopping.tool_motions`),
+instead of one of each per run, whose fixed overhead was most of its cost at a study case's
+~80 samples.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from vtm_pin.outputs.stopping import (
     tool_motion,
     tool_motions,
 )
+from vtm_pin.physics.arm_points import max_displacement, sample_arm_points
 from vtm_pin.physics.robot import RobotCache
 from vtm_pin.scene.scenario import build_scenario, load_scenario
 from vtm_pin.study import runner
@@ -85,6 +87,11 @@ def test_many_runs_motions_are_each_runs_own(mixed_runs) -> None:
         for a, b in zip(ours, (own.path, own.speed, *own.placements), strict=True):
             assert a.shape == b.shape
             np.testing.assert_allclose(a, b, rtol=0.0, atol=ROUND_OFF)
+        q = result.q[signal_row(result) :]
+        arm = max_displacement(robot, sample_arm_points(robot), q, swept=False)
+        assert own.arm is None and motion.arm is not None
+        assert motion.arm.distance == pytest.approx(arm.distance, rel=0.0, abs=ROUND_OFF)
+        assert (motion.arm.index, motion.arm.sample) == (arm.index, arm.sample)
 
 
 def test_another_tool_frame_is_followed_apart(mixed_runs) -> None:

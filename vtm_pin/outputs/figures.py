@@ -155,7 +155,9 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     placements = report.placements  # the joints' placements from the signal on, if kept
     if placements is not None and len(placements[1]) != len(result.q) - i0:
         placements = None
-    arm = max_displacement(robot, points, result.q[i0:], swept=False, placements=placements)
+    arm = report.arm or max_displacement(
+        robot, points, result.q[i0:], swept=False, placements=placements
+    )
     # The tool's origin is one of the arm's points: S_arm >= S_s, but the two are computed
     # apart and may differ in the last bit; keep the order exact.
     arm = dataclasses.replace(arm, distance=max(arm.distance, reach))

@@ -9,6 +9,7 @@ the motion before the brakes engage.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -16,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.results import RowKind, SimulationResult
+from ..physics.arm_points import ArmDisplacement, max_displacements, sample_arm_points
 from ..physics.brakes import Brake, BrakeEventKind, BrakeMode
 from ..physics.kinematics import (
     compute_tool_jacobian,
@@ -87,6 +89,8 @@ class StoppingReport:
         placements: The joints' world placements ``(R, p)`` at the samples from the signal on
             (:func:`vtm_pin.physics.kinematics.joint_placements`), which
             :func:`vtm_pin.outputs.figures.stop_figures` reuses; None if not at hand.
+        arm: The arm's largest displacement from the signal on (its points', with
+            ``swept=False``), if it was computed with other runs' (:func:`tool_motions`).
     """
 
     signal_time: float
@@ -103,6 +107,7 @@ class StoppingReport:
     placements: tuple[np.ndarray, np.ndarray] | None = field(
         default=None, repr=False, compare=False
     )
+    arm: ArmDisplacement | None = field(default=None, repr=False, compare=False)
 
     @property
     def moving(self) -> tuple[str, ...]:
@@ -120,11 +125,14 @@ class ToolMotion:
             (k, njoints, 3, 3), and origins [m], shape (k, njoints, 3).
         path: The tool frame's origin [m], shape (k, 3).
         speed: Its speed [m/s], shape (k,).
+        arm: The arm's points' largest displacement from the first of those samples
+            (:func:`~vtm_pin.physics.arm_points.max_displacements`), if it was computed.
     """
 
     placements: tuple[np.ndarray, np.ndarray]
     path: np.ndarray
     speed: np.ndarray
+    arm: ArmDisplacement | None = None
 
 
 def signal_row(result: SimulationResult) -> int:
@@ -155,7 +163,9 @@ def tool_motions(
     kinematics_key`: payload variants of one arm) and whose tool frames sit alike are computed
     together: their samples stacked, one pass of the NumPy forward kinematics for all (a
     study case has ~80 samples, where one pass per case costs mostly its fixed overhead). The
-    kinematics are sample by sample, so each run's motion is its own pass's to round-off.
+    kinematics are sample by sample, so each run's motion is its own pass's to round-off. So
+    is the arm's largest displacement (:attr:`ToolMotion.arm`), for the runs whose robots
+    share their arm points.
     """
     rows = [signal_row(result) for _, result, _ in runs]
     groups: dict[tuple[object, ...], list[int]] = {}
@@ -174,7 +184,24 @@ def tool_motions(
         for r, stop in zip(members, ends, strict=True):
             mine = slice(int(stop) - len(runs[r][1].t) + rows[r], int(stop))
             out[r] = ToolMotion((R[mine], p[mine]), path[mine], speed[mine])
-    return [m for m in out if m is not None]
+    done = [m for m in out if m is not None]
+    return _with_arms(done, [robot for robot, _, _ in runs])
+
+
+def _with_arms(motions: list[ToolMotion], robots: Sequence[Robot]) -> list[ToolMotion]:
+    """``motions`` with their arm displacements, those of one set of arm points together."""
+    groups: dict[int, list[int]] = {}
+    points = {}
+    for r, robot in enumerate(robots):
+        mine = sample_arm_points(robot)
+        points[id(mine)] = mine
+        groups.setdefault(id(mine), []).append(r)
+    out = list(motions)
+    for key, members in groups.items():
+        arms = max_displacements(points[key], [motions[r].placements for r in members])
+        for r, arm in zip(members, arms, strict=True):
+            out[r] = dataclasses.replace(motions[r], arm=arm)
+    return out
 
 
 def compute_stopping_report(
@@ -251,6 +278,7 @@ def compute_stopping_report(
         tcp_peak_speed=float(np.max(speed)),
         tcp_peak_surge=tcp_surge,
         placements=placements,
+        arm=motion.arm,
     )
 
 

@@ -35,6 +35,7 @@ the world) never moves and is left out; a payload is not sampled beyond the tool
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -387,7 +388,7 @@ def max_displacement(
 
     Only the joints and samples that may hold the largest are formed: the points of joint j
     lie within r_j of a centre c_j, so at sample t none moves farther than
-    |(R_t - R_0) c_j + o_t - o_0| + ||R_t - R_0||_F r_j; the joint's points are formed at the
+    |(R_t - R_0) c_j + o_t - o_0| + ||R_t - R_0||_2 r_j; the joint's points are formed at the
     samples where this bound reaches the largest displacement found so far (first at the
     sample and joint of the largest bound), all others are below it.
 
@@ -407,10 +408,7 @@ def max_displacement(
     carry = groups.carry
     turn = R[:, carry] - R[:1, carry]  # (T, m, 3, 3)
     shift = p[:, carry] - p[:1, carry]  # (T, m, 3)
-    middle = np.einsum("tgab,gb->tga", turn, groups.centers) + shift
-    bound = np.sqrt(np.einsum("tga,tga->tg", middle, middle))
-    bound += np.sqrt(np.einsum("tgab,tgab->tg", turn, turn)) * groups.radii
-    bound = bound * (1.0 + BOUND_SLACK) + BOUND_FLOOR
+    bound = _bounds(points, turn, shift)
     t, g = np.unravel_index(int(np.argmax(bound)), bound.shape)
     best, index, sample = 0.0, 0, 0
     # The likeliest sample of the likeliest joint first, a high bar for the others; then each
@@ -431,6 +429,105 @@ def max_displacement(
     return ArmDisplacement(math.sqrt(best), index, link, sample, kept)
 
 
+def max_displacements(
+    points: ArmPoints, placements: Sequence[tuple[np.ndarray, np.ndarray]]
+) -> list[ArmDisplacement]:
+    """:func:`max_displacement` of many trajectories at once, each from its own first sample.
+
+    The same displacements, bounds and ties as trajectory by trajectory (``swept=False``), as
+    array operations over all their samples: the bounds of every joint at every sample; each
+    trajectory's points at the sample and joint of its largest bound, a bar; then, at once
+    for each joint, its points at every sample (of any trajectory) whose bound reaches that
+    trajectory's bar. Those include every sample and joint that the one-by-one search forms
+    whose displacement can reach its result, so the largest is the same, found first at the
+    same sample and point.
+
+    Args:
+        points: The points (:func:`sample_arm_points`) of the trajectories' robot.
+        placements: Per trajectory, the joints' placements ``(R, p)`` at its T >= 1 samples
+            (:func:`~vtm_pin.physics.kinematics.joint_placements`), shapes (T, njoints, 3, 3)
+            and (T, njoints, 3) [m].
+    """
+    counts = np.array([len(p) for _, p in placements])
+    firsts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    owner = np.repeat(np.arange(len(counts)), counts)  # each sample's trajectory
+    carry = points.groups.carry
+    R = np.concatenate([r[:, carry] for r, _ in placements])
+    o = np.concatenate([p[:, carry] for _, p in placements])
+    turn = R - R[firsts][owner]  # (S, m, 3, 3): each sample against its trajectory's first
+    shift = o - o[firsts][owner]
+    bound = _bounds(points, turn, shift)
+    top = [int(np.argmax(bound[a:b])) for a, b in zip(firsts, firsts + counts, strict=True)]
+    sample, group = np.divmod(np.array(top, dtype=int), bound.shape[1])
+    sample += firsts
+    bar = _exact(points, turn, shift, sample, group)[0]
+    sample, group = np.nonzero(bound >= np.sqrt(bar)[owner][:, None])
+    value, point = _exact(points, turn, shift, sample, group)
+    # per trajectory: the largest, then the first sample, then the first point
+    order = np.lexsort((point, sample, -value, owner[sample]))
+    _, first = np.unique(owner[sample][order], return_index=True)
+    best = order[first]
+    out = []
+    for c, k in enumerate(best):
+        largest = float(value[k])
+        index, row = (int(point[k]), int(sample[k] - firsts[c])) if largest > 0.0 else (0, 0)
+        link = points.links[int(points.link[index])]
+        out.append(ArmDisplacement(math.sqrt(largest), index, link, row))
+    return out
+
+
+def _bounds(points: ArmPoints, turn: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """Upper bounds [m] of each joint's points' displacements at each sample, shape (T, m).
+
+    ``turn`` = R_t - R_0 and ``shift`` = o_t - o_0 of the joints at T samples, shapes
+    (T, m, 3, 3) and (T, m, 3) (see :func:`max_displacement`).
+    """
+    groups = points.groups
+    middle = np.einsum("tgab,gb->tga", turn, groups.centers) + shift
+    bound = np.sqrt(np.einsum("tga,tga->tg", middle, middle))
+    # ||R_t - R_0||_2 = ||R_t - R_0||_F / sqrt(2): R_0^T R_t - I, a rotation by theta less
+    # the identity, has the singular values 2 sin(theta / 2) twice and 0
+    bound += np.sqrt(np.einsum("tgab,tgab->tg", turn, turn) / 2.0) * groups.radii
+    out: np.ndarray = bound * (1.0 + BOUND_SLACK) + BOUND_FLOOR
+    return out
+
+
+def _exact(
+    points: ArmPoints, turn: np.ndarray, shift: np.ndarray, sample: np.ndarray, group: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The largest squared displacement [m^2] of joint ``group[i]``'s points at ``sample[i]``.
+
+    Returns:
+        ``(squared, point)`` per pair: the largest and its point (the first on a tie).
+    """
+    squared = np.empty(len(sample))
+    point = np.empty(len(sample), dtype=int)
+    groups = points.groups
+    for g in np.unique(group):
+        mine = np.flatnonzero(group == g)
+        start, stop = int(groups.starts[g]), int(groups.stops[g])
+        rows = sample[mine]
+        for chunk in range(0, len(rows), CHUNK):
+            some = rows[chunk : chunk + CHUNK]
+            each = _squared(points.points[start:stop], turn[some, g], shift[some, g])
+            best = np.argmax(each, axis=0)  # the first point of the largest, per sample
+            squared[mine[chunk : chunk + CHUNK]] = each[best, np.arange(len(some))]
+            point[mine[chunk : chunk + CHUNK]] = start + best
+    return squared, point
+
+
+def _squared(points: np.ndarray, turn: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """Squared displacements |turn_r p + shift_r|^2 [m^2] of points, shape (k, s).
+
+    ``points`` [m], shape (k, 3); ``turn``, shape (s, 3, 3), and ``shift`` [m], shape (s, 3).
+    """
+    count = len(turn)
+    columns = turn.transpose(2, 1, 0).reshape(3, 3 * count)  # [b, a s + r] = turn[r, a, b]
+    step = (points @ columns + shift.T.reshape(-1)).reshape(-1, 3, count)
+    out: np.ndarray = np.einsum("kir,kir->kr", step, step)
+    return out
+
+
 def _largest(
     points: ArmPoints, group: int, turn: np.ndarray, shift: np.ndarray
 ) -> tuple[float, int, int]:
@@ -449,10 +546,7 @@ def _largest(
     """
     groups = points.groups
     start, stop = int(groups.starts[group]), int(groups.stops[group])
-    count = len(turn)
-    columns = turn.transpose(2, 1, 0).reshape(3, 3 * count)  # [b, a s + r] = turn[r, a, b]
-    step = (points.points[start:stop] @ columns + shift.T.reshape(-1)).reshape(-1, 3, count)
-    squared = np.einsum("kir,kir->kr", step, step)
+    squared = _squared(points.points[start:stop], turn, shift)
     first = int(np.argmax(squared.T))  # by sample, then by point: the first hit of a tie
     r, k = divmod(first, len(squared))
     return float(squared[k, r]), start + k, r
