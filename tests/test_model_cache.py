@@ -18,6 +18,10 @@ from vtm_pin.numerics.constraints import lock_jacobian
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.numerics.integrators import DOP853, RK4
 from vtm_pin.numerics.transitions import TRANSITIONS
+from vtm_pin.physics.arm_points import sample_arm_points
+from vtm_pin.physics.kinematics import kinematics_key, pinocchio_data
+from vtm_pin.physics.payload import Payload, attach_payload
+from vtm_pin.scene import annex_b
 from vtm_pin.scene.scenario import run_scenario
 
 #: Two exact methods compared; round-off grows with cond(M) (see test_recursive_transition).
@@ -107,6 +111,28 @@ def test_a_copied_or_pickled_robot_starts_with_an_empty_cache() -> None:
     changed = dataclasses.replace(robot, model=pin.Model(robot.model))
     assert changed.cache is not robot.cache and len(changed.cache) == 0
     assert changed == robot  # the cache does not take part in comparisons
+
+
+def test_a_payload_copy_shares_the_kinematic_entries_only() -> None:
+    """A robot with a payload differs in one body's inertia: it shares its robot's kinematic
+    entries (the kinematics key, the chain, the arm's points, the Annex-B chain), both ways,
+    and builds its own dynamic ones (Data, reduced models)."""
+    robot = load_robot("ur10")
+    loaded = attach_payload(robot, Payload(mass=5.0, com=(0.0, 0.0, 0.1)))
+    assert loaded.cache is not robot.cache
+    key = kinematics_key(robot)
+    assert kinematics_key(loaded) is key  # computed once, found by the copy
+    points = sample_arm_points(loaded)
+    assert sample_arm_points(robot) is points  # the other way round
+    frame = robot.tool_frame
+    reach = annex_b.horizontal_reach(loaded, frame, np.zeros(6))
+    assert reach == annex_b.horizontal_reach(robot, frame, np.zeros(6))
+    assert loaded.cache.hits > 0 and ("annex_b_chain", frame) in robot.cache._kinematic
+    assert pinocchio_data(loaded) is not pinocchio_data(robot)
+    a, b = weightless_model(loaded)[0], weightless_model(robot)[0]
+    assert a.inertias[6] != b.inertias[6]  # its own dynamic entries: the payload's body
+    loaded.cache.clear()  # forgets for the copy alone
+    assert kinematics_key(robot) is key and kinematics_key(loaded) is not key
 
 
 @pytest.mark.parametrize("name", ["pendulum3r", "rx160l_paper_locks", "panda_estop_cat0"])

@@ -39,12 +39,20 @@ class ModelCache:
     def __init__(self, size: int = CACHE_SIZE) -> None:
         self.size = size
         self._items: OrderedDict[Hashable, Any] = OrderedDict()
+        #: The kinematic entries, shared by the caches of models that differ in their
+        #: inertias only (:meth:`share_kinematics`).
+        self._kinematic: OrderedDict[Hashable, Any] = OrderedDict()
         self.hits = 0
         self.misses = 0
 
-    def get(self, key: Hashable, build: Callable[[], T]) -> T:
-        """The entry under ``key``, built with ``build()`` and stored if absent."""
-        items = self._items
+    def get(self, key: Hashable, build: Callable[[], T], kinematic: bool = False) -> T:
+        """The entry under ``key``, built with ``build()`` and stored if absent.
+
+        ``kinematic``: the entry depends on the model's kinematics only (joints, their
+        placements and limits, frames), not on its inertias; such entries are shared with
+        the caches of models that differ in their inertias only (:meth:`share_kinematics`).
+        """
+        items = self._kinematic if kinematic else self._items
         item = items.get(key)
         if item is None:
             self.misses += 1
@@ -57,13 +65,22 @@ class ModelCache:
             items.move_to_end(key)
         return item
 
+    def share_kinematics(self, other: ModelCache) -> None:
+        """Share ``other``'s kinematic entries: this cache's model differs in inertias only.
+
+        (A robot with a payload attached: :func:`vtm_pin.physics.payload.attach_payload`.)
+        What either computes from then on, the other finds.
+        """
+        self._kinematic = other._kinematic
+
     def clear(self) -> None:
-        """Forget every entry."""
+        """Forget every entry (the kinematic ones for this cache only)."""
         self._items.clear()
+        self._kinematic = OrderedDict()
 
     def __len__(self) -> int:
-        """Number of entries kept."""
-        return len(self._items)
+        """Number of entries kept (the kinematic ones included)."""
+        return len(self._items) + len(self._kinematic)
 
     def __reduce__(self) -> tuple[type[ModelCache], tuple[int]]:
         """Pickle as an empty cache of the same size (Pinocchio objects stay behind)."""

@@ -170,7 +170,7 @@ def sample_arm_points(robot: Robot, per_link: int = PER_LINK) -> ArmPoints:
         key = (robot.source, per_link, robot.tool_frame, kinematics_key(robot))
         return _CACHE.get(key, lambda: _sample(robot, per_link))
 
-    return robot.cache.get(("arm_points", per_link), shared)
+    return robot.cache.get(("arm_points", per_link), shared, kinematic=True)
 
 
 def _sample(robot: Robot, per_link: int) -> ArmPoints:

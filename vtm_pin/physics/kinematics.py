@@ -176,7 +176,7 @@ def kinematics_key(robot: Robot) -> tuple[Any, ...]:
         placements = b"".join(m.homogeneous.tobytes() for m in model.jointPlacements)
         return tuple(model.names), tuple(model.parents), tuple(joints), placements
 
-    return robot.cache.get("kinematics_key", build)
+    return robot.cache.get("kinematics_key", build, kinematic=True)
 
 
 def _cached_chain(robot: Robot) -> JointChain | None:
@@ -185,7 +185,7 @@ def _cached_chain(robot: Robot) -> JointChain | None:
     def shared() -> tuple[JointChain | None]:
         return _CHAINS.get(kinematics_key(robot), lambda: (joint_chain(robot.model),))
 
-    return robot.cache.get("kinematic_chain", shared)[0]
+    return robot.cache.get("kinematic_chain", shared, kinematic=True)[0]
 
 
 def pinocchio_data(robot: Robot) -> pin.Data:

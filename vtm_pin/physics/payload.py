@@ -210,7 +210,9 @@ def attach_payload(robot: Robot, payload: Payload) -> Robot:
         placement = frame.placement * pin.SE3(np.eye(3), np.array(payload.com))
         jid = frame.parentJoint
         model.inertias[jid] = model.inertias[jid] + placement.act(body)
-    return dataclasses.replace(robot, model=model)
+    loaded = dataclasses.replace(robot, model=model)
+    loaded.cache.share_kinematics(robot.cache)  # the same joints: its kinematic entries hold
+    return loaded
 
 
 def describe_payload(payload: Payload, frame: str) -> str:

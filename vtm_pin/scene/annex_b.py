@@ -212,7 +212,7 @@ def horizontal_reach(robot: Robot, tool_frame: str, q: np.ndarray | Sequence[flo
     Raises:
         ConditionsError: The robot has no frame ``tool_frame``.
     """
-    chain = _chain(robot.model, tool_frame)
+    chain = _robot_chain(robot, tool_frame)
     return _Evaluator(robot.model, chain, _as_q(robot.model, q)).reach()
 
 
@@ -232,7 +232,7 @@ def max_reach(robot: Robot, tool_frame: str, q_guess: np.ndarray | Sequence[floa
         ConditionsError: The robot cannot be posed horizontally (key "extension").
     """
     model = robot.model
-    chain = _chain(model, tool_frame)
+    chain = _robot_chain(robot, tool_frame)
     return _max_reach(model, chain, _clip(model, _as_q(model, q_guess))).R
 
 
@@ -259,7 +259,8 @@ def extension_pose(
     """
     e = _fraction("extension", extension, "the extension fraction")
     model = robot.model
-    return _extension_pose(model, _chain(model, tool_frame), e, _clip(model, _as_q(model, q_guess)))
+    chain = _robot_chain(robot, tool_frame)
+    return _extension_pose(model, chain, e, _clip(model, _as_q(model, q_guess)))
 
 
 def compute_test_state(
@@ -289,7 +290,7 @@ def compute_test_state(
             f"its joints are: {', '.join(robot.joints)}",
         )
     i = robot.joints.index(conditions.joint)
-    chain = _chain(model, tool_frame)
+    chain = _robot_chain(robot, tool_frame)
     unit = "m/s" if chain.prismatic[i] else "rad/s"
     top = _max_speed(model, conditions, i, unit)
     guess = _clip(model, _as_q(model, q_guess))
@@ -416,6 +417,13 @@ def _kinematics_key(model: pin.Model, tool_frame: str) -> tuple[Any, ...]:
         frame.placement.homogeneous.tobytes(),
         model.lowerPositionLimit.tobytes(),
         model.upperPositionLimit.tobytes(),
+    )
+
+
+def _robot_chain(robot: Robot, tool_frame: str) -> _Chain:
+    """:func:`_chain` of the robot's model, kept in its cache (a kinematic entry)."""
+    return robot.cache.get(
+        ("annex_b_chain", tool_frame), lambda: _chain(robot.model, tool_frame), kinematic=True
     )
 
 
