@@ -8,12 +8,14 @@ from conftest import SCENARIOS, robot
 from vtm_pin import load_scenario, run_scenario
 from vtm_pin.outputs.stopping import compute_stopping_report
 from vtm_pin.physics import body_kernel, kinematics
+from vtm_pin.physics.arm_points import fastest_point_speeds, point_speeds, sample_arm_points
 from vtm_pin.physics.kinematics import (
     NUMPY_FROM,
     compute_tool_jacobian,
     compute_tool_motion,
     compute_tool_positions,
     joint_placements,
+    tool_column_norms,
 )
 from vtm_pin.physics.robot import Robot
 
@@ -176,6 +178,28 @@ def test_tool_positions_and_speeds_match_pinocchios_frame_motion(name, count):
     np.testing.assert_allclose(positions, ref_positions, rtol=0, atol=VEC_TOL)
     np.testing.assert_allclose(speeds, np.linalg.norm(ref_velocities, axis=1), rtol=0, atol=VEC_TOL)
     np.testing.assert_allclose(compute_tool_positions(arm, qs), positions, rtol=0, atol=VEC_TOL)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_tool_column_norms_are_those_of_pinocchios_jacobian(name):
+    arm = robot(name)
+    qs, _ = random_states(arm.model, seed=15, count=8)
+    norms = tool_column_norms(arm, joint_placements(arm, qs))
+    ref = np.linalg.norm(compute_tool_jacobian(arm, qs), axis=1)  # (T, nv)
+    np.testing.assert_allclose(norms, ref, rtol=0, atol=VEC_TOL)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_the_fastest_arm_points_are_pinocchios_point_by_point(name):
+    """fastest_point_speeds (many states at once, NumPy) against point_speeds (Pinocchio's
+    forward kinematics, one state): the same largest speed to round-off."""
+    arm = robot(name)
+    points = sample_arm_points(arm)
+    qs, vs = random_states(arm.model, seed=16, count=8)
+    fastest = fastest_point_speeds(arm, points, joint_placements(arm, qs), vs)
+    ref = [np.max(point_speeds(arm, points, q, v)) for q, v in zip(qs, vs, strict=True)]
+    np.testing.assert_allclose(fastest, ref, rtol=0, atol=VEC_TOL)
+    assert np.all(fastest > 0.0)
 
 
 def every_joint_type():

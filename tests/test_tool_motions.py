@@ -23,7 +23,8 @@ from vtm_pin.outputs.stopping import (
     tool_motion,
     tool_motions,
 )
-from vtm_pin.physics.arm_points import max_displacement, sample_arm_points
+from vtm_pin.physics.arm_points import max_displacement, point_speeds, sample_arm_points
+from vtm_pin.physics.kinematics import compute_tool_jacobian
 from vtm_pin.physics.robot import RobotCache
 from vtm_pin.scene.scenario import build_scenario, load_scenario
 from vtm_pin.study import runner
@@ -92,6 +93,13 @@ def test_many_runs_motions_are_each_runs_own(mixed_runs) -> None:
         assert own.arm is None and motion.arm is not None
         assert motion.arm.distance == pytest.approx(arm.distance, rel=0.0, abs=ROUND_OFF)
         assert (motion.arm.index, motion.arm.sample) == (arm.index, arm.sample)
+        # what the report reads at the signal, against Pinocchio's at q, v there
+        fastest = np.max(
+            point_speeds(robot, sample_arm_points(robot), q[0], result.v[len(result.v) - len(q)])
+        )
+        assert motion.arm_speed == pytest.approx(fastest, rel=0.0, abs=ROUND_OFF)
+        jac = compute_tool_jacobian(robot, q[0], frame)
+        np.testing.assert_allclose(motion.column_norms, np.linalg.norm(jac, axis=0), atol=ROUND_OFF)
 
 
 def test_another_tool_frame_is_followed_apart(mixed_runs) -> None:
@@ -137,4 +145,17 @@ def test_a_failing_joint_pass_fails_no_case(monkeypatch) -> None:
         raise RuntimeError("boom")
 
     monkeypatch.setattr("vtm_pin.outputs.stopping.tool_motions", broken)
-    assert strip(run_cases(tasks)) == strip(working)
+    alone = strip(run_cases(tasks))
+    # each report then takes the arm's and the tool's speeds at the signal from Pinocchio's
+    # kinematics there, not NumPy's: the same to round-off
+    for a, b in zip(alone, strip(working), strict=True):
+        assert a["status"] == b["status"] == "ok"
+        assert {k: v for k, v in a.items() if k != "metrics"} == {
+            k: v for k, v in b.items() if k != "metrics"
+        }
+        assert a["metrics"].keys() == b["metrics"].keys()
+        for key, value in a["metrics"].items():
+            other = b["metrics"][key]
+            assert (value is None) == (other is None), key
+            if value is not None:
+                assert value == pytest.approx(other, rel=ROUND_OFF, abs=ROUND_OFF), key

@@ -149,13 +149,17 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     )
     path = report.tcp_path
     reach = float(np.max(np.linalg.norm(path - path[0], axis=1))) if len(path) else 0.0
-    speed = tool_speed_at_signal(robot, result, report)
+    motion = report.motion  # what the report was made from, computed with other runs' or not
+    if motion is not None and len(motion.speed):
+        speed = float(motion.speed[0])  # its tool speed from the placements, by NumPy
+    else:
+        speed = tool_speed_at_signal(robot, result, report)
     i0 = int(np.argmax(result.t >= report.signal_time))
     points = sample_arm_points(robot)
     placements = report.placements  # the joints' placements from the signal on, if kept
     if placements is not None and len(placements[1]) != len(result.q) - i0:
         placements = None
-    arm = report.arm or max_displacement(
+    arm = (motion.arm if motion is not None else None) or max_displacement(
         robot, points, result.q[i0:], swept=False, placements=placements
     )
     # The tool's origin is one of the arm's points: S_arm >= S_s, but the two are computed
@@ -163,7 +167,9 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     arm = dataclasses.replace(arm, distance=max(arm.distance, reach))
     # S_s of S_p is the arm's largest displacement (>= the tool's): the part of the arm that
     # reaches a person first is not always the tool, and a smaller S_s is the unsafe side.
-    v_r = float(np.max(point_speeds(robot, points, result.q[i0], result.v[i0])))
+    v_r = motion.arm_speed if motion is not None else None
+    if v_r is None:
+        v_r = float(np.max(point_speeds(robot, points, result.q[i0], result.v[i0])))
     v_r = max(v_r, speed)  # the tool is one of the points: equal up to round-off
     separation = scenario.separation.figures(report.all_stopped_time, v_r, arm.distance)
     metrics: dict[str, float | None] = {

@@ -347,9 +347,13 @@ def speed_flag(
     limits = np.asarray(robot.model.velocityLimit, dtype=float)
     if not np.all(np.isfinite(limits) & (limits > 0.0)):
         return None
-    i0 = int(np.argmax(result.t >= report.signal_time))
-    jac = compute_tool_jacobian(robot, result.q[i0][None], tool_frame)[0]
-    bound = float(np.linalg.norm(jac, axis=0) @ limits)
+    norms = report.motion.column_norms if report.motion is not None else None
+    if norms is None:
+        i0 = int(np.argmax(result.t >= report.signal_time))
+        norms = np.linalg.norm(
+            compute_tool_jacobian(robot, result.q[i0][None], tool_frame)[0], axis=0
+        )
+    bound = float(norms @ limits)
     if report.tcp_peak_speed <= bound * (1.0 + SLACK):
         return None
     return Flag(

@@ -17,13 +17,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.results import RowKind, SimulationResult
-from ..physics.arm_points import ArmDisplacement, max_displacements, sample_arm_points
+from ..physics.arm_points import (
+    ArmDisplacement,
+    fastest_point_speeds,
+    max_displacements,
+    sample_arm_points,
+)
 from ..physics.brakes import Brake, BrakeEventKind, BrakeMode
 from ..physics.kinematics import (
+    cached_chain,
     compute_tool_jacobian,
     compute_tool_motion,
     joint_placements,
     kinematics_key,
+    tool_column_norms,
 )
 from ..physics.robot import Robot
 from ..physics.stop import DEFAULT_REST_SPEED
@@ -89,8 +96,8 @@ class StoppingReport:
         placements: The joints' world placements ``(R, p)`` at the samples from the signal on
             (:func:`vtm_pin.physics.kinematics.joint_placements`), which
             :func:`vtm_pin.outputs.figures.stop_figures` reuses; None if not at hand.
-        arm: The arm's largest displacement from the signal on (its points', with
-            ``swept=False``), if it was computed with other runs' (:func:`tool_motions`).
+        motion: The motion from the signal on that the report was made from
+            (:class:`ToolMotion`: what :func:`tool_motions` computed with other runs' as well).
     """
 
     signal_time: float
@@ -107,7 +114,7 @@ class StoppingReport:
     placements: tuple[np.ndarray, np.ndarray] | None = field(
         default=None, repr=False, compare=False
     )
-    arm: ArmDisplacement | None = field(default=None, repr=False, compare=False)
+    motion: ToolMotion | None = field(default=None, repr=False, compare=False)
 
     @property
     def moving(self) -> tuple[str, ...]:
@@ -127,12 +134,19 @@ class ToolMotion:
         speed: Its speed [m/s], shape (k,).
         arm: The arm's points' largest displacement from the first of those samples
             (:func:`~vtm_pin.physics.arm_points.max_displacements`), if it was computed.
+        arm_speed: The fastest arm point's speed at the first sample [m/s]
+            (:func:`~vtm_pin.physics.arm_points.fastest_point_speeds`), if it was computed.
+        column_norms: The lengths of the tool frame's linear Jacobian columns at the first
+            sample [m/rad or -], shape (nv,)
+            (:func:`~vtm_pin.physics.kinematics.tool_column_norms`), if they were computed.
     """
 
     placements: tuple[np.ndarray, np.ndarray]
     path: np.ndarray
     speed: np.ndarray
     arm: ArmDisplacement | None = None
+    arm_speed: float | None = None
+    column_norms: np.ndarray | None = None
 
 
 def signal_row(result: SimulationResult) -> int:
@@ -164,8 +178,10 @@ def tool_motions(
     together: their samples stacked, one pass of the NumPy forward kinematics for all (a
     study case has ~80 samples, where one pass per case costs mostly its fixed overhead). The
     kinematics are sample by sample, so each run's motion is its own pass's to round-off. So
-    is the arm's largest displacement (:attr:`ToolMotion.arm`), for the runs whose robots
-    share their arm points.
+    are what a report reads at the signal (the tool's Jacobian, the arm's points' speeds)
+    and the arm's largest displacement (:attr:`ToolMotion.arm`), for the runs whose robots
+    share their arm points. Those three are left None for a model whose joints the NumPy
+    kinematics do not take.
     """
     rows = [signal_row(result) for _, result, _ in runs]
     groups: dict[tuple[object, ...], list[int]] = {}
@@ -181,26 +197,44 @@ def tool_motions(
         stacked = _motion(robot, q, v, frame)
         (R, p), path, speed = stacked.placements, stacked.path, stacked.speed
         ends = np.cumsum([len(runs[r][1].t) - rows[r] for r in members])
-        for r, stop in zip(members, ends, strict=True):
-            mine = slice(int(stop) - len(runs[r][1].t) + rows[r], int(stop))
-            out[r] = ToolMotion((R[mine], p[mine]), path[mine], speed[mine])
+        firsts = ends - [len(runs[r][1].t) - rows[r] for r in members]
+        norms = None
+        if cached_chain(robot) is not None:
+            norms = tool_column_norms(robot, (R[firsts], p[firsts]), frame)
+        for c, (r, first, stop) in enumerate(zip(members, firsts, ends, strict=True)):
+            mine = slice(int(first), int(stop))
+            column = None if norms is None else norms[c]
+            out[r] = ToolMotion((R[mine], p[mine]), path[mine], speed[mine], column_norms=column)
     done = [m for m in out if m is not None]
-    return _with_arms(done, [robot for robot, _, _ in runs])
+    return _at_the_arm(done, runs, rows)
 
 
-def _with_arms(motions: list[ToolMotion], robots: Sequence[Robot]) -> list[ToolMotion]:
-    """``motions`` with their arm displacements, those of one set of arm points together."""
+def _at_the_arm(
+    motions: list[ToolMotion],
+    runs: Sequence[tuple[Robot, SimulationResult, str | None]],
+    rows: Sequence[int],
+) -> list[ToolMotion]:
+    """``motions`` with the arm's largest displacement and fastest point at the signal.
+
+    Those of the runs that share one set of arm points together.
+    """
     groups: dict[int, list[int]] = {}
     points = {}
-    for r, robot in enumerate(robots):
+    for r, (robot, _, _) in enumerate(runs):
+        if cached_chain(robot) is None:
+            continue
         mine = sample_arm_points(robot)
         points[id(mine)] = mine
         groups.setdefault(id(mine), []).append(r)
     out = list(motions)
     for key, members in groups.items():
         arms = max_displacements(points[key], [motions[r].placements for r in members])
-        for r, arm in zip(members, arms, strict=True):
-            out[r] = dataclasses.replace(motions[r], arm=arm)
+        R = np.stack([motions[r].placements[0][0] for r in members])
+        p = np.stack([motions[r].placements[1][0] for r in members])
+        v = np.stack([runs[r][1].v[rows[r]] for r in members])
+        speeds = fastest_point_speeds(runs[members[0]][0], points[key], (R, p), v)
+        for r, arm, speed in zip(members, arms, speeds, strict=True):
+            out[r] = dataclasses.replace(motions[r], arm=arm, arm_speed=float(speed))
     return out
 
 
@@ -278,7 +312,7 @@ def compute_stopping_report(
         tcp_peak_speed=float(np.max(speed)),
         tcp_peak_surge=tcp_surge,
         placements=placements,
-        arm=motion.arm,
+        motion=motion,
     )
 
 

@@ -45,7 +45,14 @@ import numpy as np
 import pinocchio as pin
 
 from ..files.model_cache import ModelCache
-from .kinematics import joint_placements, kinematics_key, pinocchio_data
+from .kinematics import (
+    body_velocities,
+    cached_chain,
+    cross,
+    joint_placements,
+    kinematics_key,
+    pinocchio_data,
+)
 from .robot import Robot
 
 #: ``ArmPoints.source`` for points on the links' collision geometry.
@@ -550,6 +557,34 @@ def _largest(
     first = int(np.argmax(squared.T))  # by sample, then by point: the first hit of a tie
     r, k = divmod(first, len(squared))
     return float(squared[k, r]), start + k, r
+
+
+def fastest_point_speeds(
+    robot: Robot, points: ArmPoints, placements: tuple[np.ndarray, np.ndarray], v: np.ndarray
+) -> np.ndarray:
+    """The fastest point's speed [m/s] at each of T states, shape (T,).
+
+    :func:`point_speeds`' largest, at many states at once from the joints' placements
+    ``(R, p)`` at them (:func:`~vtm_pin.physics.kinematics.joint_placements`) and the rates
+    ``v`` [rad/s or m/s], shape (T, nv): a point at R_j p_i + o_j of joint j's body moves at
+    v_j + omega_j x (R_j p_i) (:func:`~vtm_pin.physics.kinematics.body_velocities`).
+
+    Raises:
+        ValueError: The model has a joint type the NumPy kinematics do not take.
+    """
+    chain = cached_chain(robot)
+    if chain is None:
+        raise ValueError("the model has a joint type the NumPy kinematics do not take")
+    R, p = placements
+    omega, velocity = body_velocities(chain, R, p, np.asarray(v, dtype=float))
+    groups = points.groups
+    out = np.zeros(len(R))
+    for j, start, stop in zip(groups.joints, groups.starts, groups.stops, strict=True):
+        arms = points.points[start:stop] @ R[:, j].transpose(0, 2, 1)  # (T, k, 3): R_j p_i
+        moving = velocity[:, j, None] + cross(omega[:, j, None], arms)
+        fastest = np.sqrt(np.max(np.einsum("tki,tki->tk", moving, moving), axis=1))
+        np.maximum(out, fastest, out=out)
+    return out
 
 
 def point_speeds(robot: Robot, points: ArmPoints, q: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -179,7 +179,7 @@ def kinematics_key(robot: Robot) -> tuple[Any, ...]:
     return robot.cache.get("kinematics_key", build, kinematic=True)
 
 
-def _cached_chain(robot: Robot) -> JointChain | None:
+def cached_chain(robot: Robot) -> JointChain | None:
     """:func:`joint_chain` of the robot's model, kept in its cache, shared by equal kinematics."""
 
     def shared() -> tuple[JointChain | None]:
@@ -208,7 +208,7 @@ def joint_placements(model: pin.Model | Robot, qs: np.ndarray) -> tuple[np.ndarr
         (..., njoints, 3), of the joints' frames (index 0 is the world: identity, 0).
     """
     if isinstance(model, Robot):
-        chain, model = _cached_chain(model), model.model
+        chain, model = cached_chain(model), model.model
     else:
         chain = joint_chain(model)
     qs = np.asarray(qs, dtype=float)
@@ -226,17 +226,34 @@ def _frame_velocity(
 ) -> np.ndarray:
     """Linear velocity [m/s] of a point ``origin`` [m], shape (T, 3), carried by ``joint``.
 
-    The sum over the joints from ``joint`` to the root of their Jacobian columns times their
-    rates ``vs`` [rad/s or m/s], shape (T, nv); ``R``, ``p`` are the joints' placements at the
-    T samples. Shape (T, 3). The joints' terms are formed all at once.
+    The sum over the joints from ``joint`` to the root of their Jacobian columns
+    (:func:`_frame_columns`) times their rates ``vs`` [rad/s or m/s], shape (T, nv). Shape
+    (T, 3).
+    """
+    columns, path = _frame_columns(chain, R, p, joint, origin)
+    if not path:
+        return np.zeros((len(R), 3))
+    terms = columns * vs[:, [chain.index[j] for j in path], None]
+    # summed from ``joint`` to the root, one joint after the other (the reduced axis is not
+    # the innermost one, so NumPy adds in order)
+    return np.add.reduce(terms, axis=1)
+
+
+def _frame_columns(
+    chain: JointChain, R: np.ndarray, p: np.ndarray, joint: int, origin: np.ndarray
+) -> tuple[np.ndarray, list[int]]:
+    """The linear Jacobian columns of a point ``origin`` [m], shape (T, 3), carried by ``joint``.
+
+    Per joint from ``joint`` to the root: w_j x (origin - o_j) if it turns, w_j if it slides
+    (w_j its axis in the world, o_j its origin; ``R``, ``p`` the joints' placements at the T
+    samples). Returns the columns [m/rad or -], shape (T, len(path), 3), formed all at once,
+    and their joints ``path``.
     """
     path = []
     j = joint
     while j > 0:
         path.append(j)
         j = chain.parents[j]
-    if not path:
-        return np.zeros((len(R), 3))
     count = len(R)
     axes = np.empty((count, len(path), 3))  # each joint's axis in the world
     for k, j in enumerate(path):
@@ -246,10 +263,60 @@ def _frame_velocity(
     if turns:
         arms = origin[:, None] - p[:, [path[k] for k in turns]]
         columns[:, turns] = cross(axes[:, turns], arms)
-    terms = columns * vs[:, [chain.index[j] for j in path], None]
-    # summed from ``joint`` to the root, one joint after the other (the reduced axis is not
-    # the innermost one, so NumPy adds in order)
-    return np.add.reduce(terms, axis=1)
+    return columns, path
+
+
+def tool_column_norms(
+    robot: Robot,
+    placements: tuple[np.ndarray, np.ndarray],
+    tool_frame: str | None = None,
+) -> np.ndarray:
+    """|J_j|: the lengths of the tool frame's linear Jacobian columns [m/rad or -], shape (T, nv).
+
+    At T samples whose joints' placements ``(R, p)`` are at hand (:func:`joint_placements`):
+    the tool speed joint j gives at a unit rate; 0 for joints that do not carry the tool.
+
+    Raises:
+        ValueError: The model has a joint type the NumPy kinematics do not take.
+    """
+    chain = cached_chain(robot)
+    if chain is None:
+        raise ValueError("the model has a joint type the NumPy kinematics do not take")
+    R, p = placements
+    _, frame = _frame(robot.model, robot, tool_frame)
+    columns, path = _frame_columns(chain, R, p, int(frame.parentJoint), _origins(R, p, frame))
+    out = np.zeros((len(R), robot.nv))
+    out[:, [chain.index[j] for j in path]] = np.sqrt(np.einsum("tki,tki->tk", columns, columns))
+    return out
+
+
+def body_velocities(
+    chain: JointChain, R: np.ndarray, p: np.ndarray, v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each joint's body's angular velocity and its origin's velocity, world axes, at T states.
+
+    Args:
+        chain: The model's joints (:func:`joint_chain`).
+        R: The joints' rotations at the states, shape (T, njoints, 3, 3).
+        p: Their origins [m], shape (T, njoints, 3).
+        v: The rates [rad/s or m/s], shape (T, nv).
+
+    Returns:
+        ``(omega, velocity)`` [rad/s, m/s], each shape (T, njoints, 3): a point x fixed to
+        body j moves at velocity[:, j] + omega[:, j] x (x - p[:, j]).
+    """
+    omega = np.zeros(p.shape)
+    velocity = np.zeros(p.shape)
+    for j in range(1, len(chain.parents)):
+        parent = chain.parents[j]
+        along = (R[:, j].reshape(-1, 3) @ chain.axes[j]).reshape(-1, 3) * v[:, [chain.index[j]]]
+        velocity[:, j] = velocity[:, parent] + cross(omega[:, parent], p[:, j] - p[:, parent])
+        omega[:, j] = omega[:, parent]
+        if chain.revolute[j]:
+            omega[:, j] += along
+        else:
+            velocity[:, j] += along
+    return omega, velocity
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -310,7 +377,7 @@ def compute_tool_motion(
     vs = np.atleast_2d(np.asarray(v, dtype=float))
     if qs.shape != vs.shape:
         raise ValueError(f"q has shape {qs.shape} and v {vs.shape}; they must be the same")
-    chain = _cached_chain(robot)
+    chain = cached_chain(robot)
     if chain is None or len(qs) < NUMPY_FROM:
         return _pinocchio_motion(model, fid, qs, vs)
     R, p = _numpy_placements(chain, qs) if placements is None else placements
