@@ -10,7 +10,11 @@ from hypothesis import strategies as st
 from vtm_pin.numerics.constraints import lock_jacobian
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.numerics.transitions import TRANSITIONS
-from vtm_pin.numerics.transitions.recursive import compute_joint_lock_transition, weightless
+from vtm_pin.numerics.transitions.recursive import (
+    compute_joint_lock_transition,
+    compute_joint_lock_transition_dense,
+    weightless,
+)
 from vtm_pin.physics.chain import build_chain
 from vtm_pin.physics.robot import load_robot
 
@@ -82,3 +86,33 @@ def test_locking_joints_at_rest_changes_nothing_exactly(name: str) -> None:
     fast = compute_joint_lock_transition(weightless(robot.model), q, v, [3], [1])
     np.testing.assert_array_equal(fast.v_plus, v)
     np.testing.assert_array_equal(fast.Lambda, 0.0)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(n=st.integers(2, 12), seed=st.integers(0, 2**31 - 1), data=st.data())
+def test_the_dense_lock_at_rest_is_the_general_one(n, seed, data) -> None:
+    """Locking joints whose rates are exactly 0 (a brake sticking at rest) takes a short path:
+    v+ = v- and no impulse to the bit, no energy lost, the free momentum (M v)_f kept, as the
+    general steps give them (M times a zero dv) and as kkt does to round-off; with a locking
+    rate not 0 it is not taken."""
+    robot = build_chain(n, spatial=True)
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1.5, 1.5, n)
+    v = rng.uniform(-2.0, 2.0, n)
+    joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
+    split = data.draw(st.integers(0, len(joints) - 1))
+    before, now = joints[:split], joints[split:]
+    v[joints] = 0.0
+    M = compute_M(robot.model, robot.model.createData(), q)
+    fast = compute_joint_lock_transition_dense(M, v, before, now)
+    free = [i for i in range(n) if i not in joints]
+    np.testing.assert_array_equal(fast.v_plus, v)
+    np.testing.assert_array_equal(fast.Lambda, np.zeros(len(joints)))
+    np.testing.assert_array_equal(fast.p_free_minus, (M @ v)[free])
+    np.testing.assert_array_equal(fast.p_free_plus, fast.p_free_minus)
+    assert (fast.energy_loss, fast.m1, fast.residual) == (0.0, len(before), 0.0)
+    reference = TRANSITIONS["kkt"](M, lock_jacobian(n, before), lock_jacobian(n, now), v)
+    np.testing.assert_allclose(fast.v_plus, reference.v_plus, rtol=0, atol=1e-12)
+    v[now[0]] = 1e-3  # one locking joint moves: a jump
+    moving = compute_joint_lock_transition_dense(M, v, before, now)
+    assert moving.energy_loss > 0.0 and np.any(moving.Lambda != 0.0)

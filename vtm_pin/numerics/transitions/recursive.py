@@ -105,6 +105,8 @@ def compute_joint_lock_transition_dense(
         locked_before: Velocity indices locked before the event.
         joints: Velocity indices locking at the event.
     """
+    if not any(v_minus[i] for i in (*locked_before, *joints)):
+        return _at_rest(M, v_minus, locked_before, joints)
     rows, free = _split(len(v_minus), locked_before, joints)
     p_minus = M @ v_minus
     v_plus = np.array(v_minus, dtype=float)
@@ -120,6 +122,34 @@ def compute_joint_lock_transition_dense(
         )
     M_dv = M @ (v_plus - v_minus)
     return _result(v_minus, v_plus, p_minus, M_dv, rows, free, len(locked_before))
+
+
+def _at_rest(
+    M: np.ndarray, v_minus: np.ndarray, locked_before: Sequence[int], joints: Sequence[int]
+) -> TransitionResult:
+    """:func:`compute_joint_lock_transition_dense` where every locked rate is exactly 0.
+
+    No jump: v+ = v-, no impulse, no energy lost, the free momentum (M v)_f kept. The general
+    steps give exactly these (M times a zero dv); a brake that sticks at rest takes this path
+    (six times a study case), without their products.
+    """
+    v_plus = np.array(v_minus, dtype=float)
+    if not np.isfinite(v_plus).all():
+        raise TransitionError(
+            "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
+            "matrix is singular or too ill-conditioned for this lock"
+        )
+    locked = {*locked_before, *joints}
+    p_free = (M @ v_plus)[[i for i in range(len(v_plus)) if i not in locked]]
+    return TransitionResult(
+        v_plus=v_plus,
+        Lambda=np.zeros(len(locked_before) + len(joints)),
+        m1=len(locked_before),
+        energy_loss=0.0,
+        p_free_minus=p_free,
+        p_free_plus=p_free.copy(),
+        residual=0.0,
+    )
 
 
 def _split(
