@@ -30,6 +30,7 @@ their own) and the intervals handed to the loop.
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import statistics
 import subprocess
@@ -77,6 +78,7 @@ def per_state(model: pin.Model, batch: int) -> dict[str, float]:
 
 def case_times(tasks: list[CaseTask]) -> dict[str, float]:
     """Mean build, simulate and report time of the cases [ms] (a worker's batch, warmed)."""
+    gc.freeze()  # as a pool worker does at its start (vtm_pin.study.executors._init_worker)
     run_cases(tasks[:50])  # warm: the robots, reaches and schema memo a worker keeps
     ok = [r for r in run_cases(tasks) if r.get("status") == "ok"]
     return {p: 1e3 * statistics.fmean(r["timing"][p] for r in ok) for p in PARTS}
