@@ -47,10 +47,10 @@ import pinocchio as pin
 from ..files.model_cache import ModelCache
 from .kinematics import (
     body_velocities,
-    cached_chain,
     cross,
     joint_placements,
     kinematics_key,
+    numpy_chain,
     pinocchio_data,
 )
 from .robot import Robot
@@ -572,9 +572,7 @@ def fastest_point_speeds(
     Raises:
         ValueError: The model has a joint type the NumPy kinematics do not take.
     """
-    chain = cached_chain(robot)
-    if chain is None:
-        raise ValueError("the model has a joint type the NumPy kinematics do not take")
+    chain = numpy_chain(robot)
     R, p = placements
     omega, velocity = body_velocities(chain, R, p, np.asarray(v, dtype=float))
     groups = points.groups

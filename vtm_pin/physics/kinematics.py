@@ -188,6 +188,18 @@ def cached_chain(robot: Robot) -> JointChain | None:
     return robot.cache.get("kinematic_chain", shared, kinematic=True)[0]
 
 
+def numpy_chain(robot: Robot) -> JointChain:
+    """:func:`cached_chain`, for the NumPy kinematics that need it.
+
+    Raises:
+        ValueError: The model has a joint type the NumPy kinematics do not take.
+    """
+    chain = cached_chain(robot)
+    if chain is None:
+        raise ValueError("the model has a joint type the NumPy kinematics do not take")
+    return chain
+
+
 def pinocchio_data(robot: Robot) -> pin.Data:
     """The robot's Pinocchio ``Data``, one per model, kept in its cache.
 
@@ -279,9 +291,7 @@ def tool_column_norms(
     Raises:
         ValueError: The model has a joint type the NumPy kinematics do not take.
     """
-    chain = cached_chain(robot)
-    if chain is None:
-        raise ValueError("the model has a joint type the NumPy kinematics do not take")
+    chain = numpy_chain(robot)
     R, p = placements
     _, frame = _frame(robot.model, robot, tool_frame)
     columns, path = _frame_columns(chain, R, p, int(frame.parentJoint), _origins(R, p, frame))
