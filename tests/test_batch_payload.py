@@ -23,6 +23,7 @@ from vtm_pin.core.batch import (
     _groups,
     batch_key,
     model_key,
+    robot_model_key,
     run_many,
 )
 from vtm_pin.numerics.dynamics import compute_M
@@ -155,10 +156,20 @@ def test_runs_with_drawn_payloads_are_batched_and_agree_with_the_scalar_engine()
 def test_a_batchs_model_is_the_one_most_of_its_runs_have() -> None:
     """Runs of the most common model cost nothing more: it is the batch's (the first in a tie)."""
     robot = vp.load_robot("ur10")
-    light = attach_payload(robot, Payload(1.0, (0.0, 0.0, 0.05))).model
-    heavy = [attach_payload(robot, Payload(8.0, (0.0, 0.0, 0.05))).model for _ in range(2)]
-    assert _base_model([light, *heavy]) is heavy[0]
-    assert _base_model([light, heavy[0]]) is light
+    light = attach_payload(robot, Payload(1.0, (0.0, 0.0, 0.05)))
+    heavy = [attach_payload(robot, Payload(8.0, (0.0, 0.0, 0.05))) for _ in range(2)]
+    assert _base_model([light, *heavy]) is heavy[0].model
+    assert _base_model([light, heavy[0]]) is light.model
+
+
+def test_a_robots_cached_model_key_is_its_models() -> None:
+    """The key kept in part in a robot's cache (shared with its payload copies) is
+    :func:`model_key` of its model, before and after a copy has filled the shared part."""
+    robot = vp.load_robot("ur10")
+    loaded = attach_payload(robot, Payload(3.0, (0.0, 0.01, 0.05)))
+    assert robot_model_key(loaded) == model_key(loaded.model)
+    assert robot_model_key(robot) == model_key(robot.model)
+    assert robot_model_key(loaded) != robot_model_key(robot)
 
 
 def test_a_model_with_min_lanes_runs_keeps_its_own_batch_and_the_rest_are_pooled() -> None:
