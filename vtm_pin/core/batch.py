@@ -1478,8 +1478,8 @@ def _groups(
     exact: dict[tuple[bytes, object], list[int]] = {}
     for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
         if reason is None:
-            key = robot_model_key(problem.robot)
-            exact.setdefault((key, integrators[index]), []).append(index)
+            model = robot_model_key(problem.robot)
+            exact.setdefault((model, integrators[index]), []).append(index)
     groups: dict[tuple[bytes, object], list[int]] = {}
     for (model, integrator), indices in exact.items():
         if len(indices) >= MIN_LANES:
