@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -11,8 +12,10 @@ from vtm_pin.numerics.constraints import lock_jacobian
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.numerics.transitions import TRANSITIONS
 from vtm_pin.numerics.transitions.recursive import (
+    at_rest,
     compute_joint_lock_transition,
     compute_joint_lock_transition_dense,
+    joint_lock_at_rest,
     weightless,
 )
 from vtm_pin.physics.chain import build_chain
@@ -116,3 +119,33 @@ def test_the_dense_lock_at_rest_is_the_general_one(n, seed, data) -> None:
     v[now[0]] = 1e-3  # one locking joint moves: a jump
     moving = compute_joint_lock_transition_dense(M, v, before, now)
     assert moving.energy_loss > 0.0 and np.any(moving.Lambda != 0.0)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(n=st.integers(2, 12), seed=st.integers(0, 2**31 - 1), data=st.data())
+def test_the_lock_at_rest_from_the_momentum_is_the_recursive_one_to_the_bit(n, seed, data) -> None:
+    """A run's lock at rest (both engines' hybrid loops) takes M v- from one RNEA pass on the
+    weightless model and builds no reduced model: every field equals the recursive rule's, to
+    the bit (with zero locked rates its solve and products give exact zeros)."""
+    robot = build_chain(n, spatial=True)
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1.5, 1.5, n)
+    v = rng.uniform(-2.0, 2.0, n)
+    joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
+    split = data.draw(st.integers(0, len(joints) - 1))
+    before, now = joints[:split], joints[split:]
+    v[joints] = 0.0
+    model = weightless(robot.model)
+    assert at_rest(v, before, now)
+    p = pin.rnea(model, model.createData(), q, np.zeros(n), v)
+    short = joint_lock_at_rest(p, v, before, now)
+    general = compute_joint_lock_transition(model, q, v, before, now)
+    for field in ("v_plus", "Lambda", "p_free_minus", "p_free_plus"):
+        np.testing.assert_array_equal(getattr(short, field), getattr(general, field))
+    assert (short.energy_loss, short.m1, short.residual) == (
+        general.energy_loss,
+        general.m1,
+        general.residual,
+    )
+    v[now[0]] = 1e-3
+    assert not at_rest(v, before, now)

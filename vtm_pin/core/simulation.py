@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
+import pinocchio as pin
 
 from ..exceptions import SimulationError
 from ..numerics.constraints import check_independent, lock_jacobian
@@ -25,8 +26,10 @@ from ..numerics.integrators import Integrator, Rhs, Segment
 from ..numerics.integrators.base import writer
 from ..numerics.transitions import TRANSITIONS, TransitionResult
 from ..numerics.transitions.recursive import (
+    at_rest,
     compute_joint_lock_transition,
     compute_joint_lock_transition_dense,
+    joint_lock_at_rest,
 )
 from ..physics.brakes import Brake, BrakeMachine
 from ..physics.drives import DriveHold, DriveLaw, DriveOff, DriveRamp, short_circuit
@@ -138,7 +141,11 @@ class _Hybrid:
             *(RowLabel(RowKind.FRAME, f.name, a) for f in frames for a in f.axes),
         ]
         pure = not (frames or self.frames) and len(set(joints)) == len(joints)
-        if pure and self.rule_name == "kkt" and self.reduced:
+        if pure and self.rule_name == "kkt" and at_rest(self.v, self.locked, joints):
+            model, data = weightless_model(self.robot)  # M v- by RNEA: neither M nor a solve
+            p = pin.rnea(model, data, self.q, np.zeros(self.robot.nv), self.v)
+            result = joint_lock_at_rest(p, self.v, self.locked, joints)
+        elif pure and self.rule_name == "kkt" and self.reduced:
             result = self.joint_lock(joints)
         elif pure and self.rule_name == "kkt":
             M = compute_M(self.robot.model, self.data, self.q)

@@ -105,8 +105,8 @@ def compute_joint_lock_transition_dense(
         locked_before: Velocity indices locked before the event.
         joints: Velocity indices locking at the event.
     """
-    if not any(v_minus[i] for i in (*locked_before, *joints)):
-        return _at_rest(M, v_minus, locked_before, joints)
+    if at_rest(v_minus, locked_before, joints):
+        return joint_lock_at_rest(M @ v_minus, v_minus, locked_before, joints)
     rows, free = _split(len(v_minus), locked_before, joints)
     p_minus = M @ v_minus
     v_plus = np.array(v_minus, dtype=float)
@@ -124,14 +124,26 @@ def compute_joint_lock_transition_dense(
     return _result(v_minus, v_plus, p_minus, M_dv, rows, free, len(locked_before))
 
 
-def _at_rest(
-    M: np.ndarray, v_minus: np.ndarray, locked_before: Sequence[int], joints: Sequence[int]
+def at_rest(v_minus: np.ndarray, locked_before: Sequence[int], joints: Sequence[int]) -> bool:
+    """Whether every locked rate is exactly 0: the lock is :func:`joint_lock_at_rest`."""
+    return not any(v_minus[i] for i in (*locked_before, *joints))
+
+
+def joint_lock_at_rest(
+    p_minus: np.ndarray, v_minus: np.ndarray, locked_before: Sequence[int], joints: Sequence[int]
 ) -> TransitionResult:
-    """:func:`compute_joint_lock_transition_dense` where every locked rate is exactly 0.
+    """The joint-lock transition where every locked rate is exactly 0 (:func:`at_rest`).
 
     No jump: v+ = v-, no impulse, no energy lost, the free momentum (M v)_f kept. The general
     steps give exactly these (M times a zero dv); a brake that sticks at rest takes this path
-    (six times a study case), without their products.
+    (six times a study case), without their products, and needs M v only (one RNEA pass on
+    the weightless model, not M).
+
+    Args:
+        p_minus: The momentum M v- [N m s], shape (n,).
+        v_minus: Velocity just before the event [rad/s], 0 at the locked joints.
+        locked_before: Velocity indices locked before the event.
+        joints: Velocity indices locking at the event.
     """
     v_plus = np.array(v_minus, dtype=float)
     if not np.isfinite(v_plus).all():
@@ -139,8 +151,8 @@ def _at_rest(
             "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
             "matrix is singular or too ill-conditioned for this lock"
         )
-    locked = {*locked_before, *joints}
-    p_free = (M @ v_plus)[[i for i in range(len(v_plus)) if i not in locked]]
+    _, free = _split(len(v_plus), locked_before, joints)
+    p_free = p_minus[free]
     return TransitionResult(
         v_plus=v_plus,
         Lambda=np.zeros(len(locked_before) + len(joints)),
