@@ -9,6 +9,7 @@ brake's friction has delivered to its joint [N m s] (n entries).
 from __future__ import annotations
 
 import functools
+import weakref
 
 import numpy as np
 import pinocchio as pin
@@ -88,8 +89,6 @@ class Phase:
         self._powered = bool(np.count_nonzero(self._drive_f))
         self._drives = self._powered or self.dynamic is not None
         self.passive = not self._drives and not self._sliding and not self.constraints
-        # passive: the topology itself, which can also write into the integrator's buffers
-        self.rhs: Rhs = self.topology if self.passive else self._rhs
         # Per-call constants of the right-hand side: no torque, and where the impulses go.
         self._no_torque = np.zeros(self.k)
         self._no_torque.flags.writeable = False
@@ -101,9 +100,22 @@ class Phase:
         machine = self.machine
         if machine is None:
             return []
+        holding = weakref.WeakMethod(self.holding_torque)  # no reference cycle through self
         return machine.state_events(
-            self.topology.free.tolist(), self.topology.locked, self.holding_torque
+            self.topology.free.tolist(),
+            self.topology.locked,
+            lambda t, y: holding()(t, y),  # type: ignore[misc]
         )
+
+    @property
+    def rhs(self) -> Rhs:
+        """The right-hand side f(t, y) of this phase's free state y.
+
+        A passive phase's is the topology itself, which can also write into the integrator's
+        buffers. (A property, not an attribute: a phase that held its own bound method would
+        be a reference cycle, left to the garbage collector.)
+        """
+        return self.topology if self.passive else self._rhs
 
     @functools.cached_property
     def event_specs(self) -> list[EventSpec]:
