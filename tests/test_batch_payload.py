@@ -27,7 +27,7 @@ from vtm_pin.core.batch import (
     run_many,
 )
 from vtm_pin.numerics.dynamics import compute_M
-from vtm_pin.physics import body_kernel
+from vtm_pin.physics import body_kernel, chain_dynamics
 from vtm_pin.physics.payload import Payload, attach_payload
 from vtm_pin.scene.scenario import SCENARIOS_DIR
 
@@ -46,7 +46,9 @@ def _payload(rng: np.random.Generator) -> Payload:
     return Payload(mass, tuple(rng.uniform(-0.1, 0.1, 3)), inertia)
 
 
-@pytest.mark.parametrize(
+#: The batched engine's two paths: NumPy (and Pinocchio's RNEA columns), the default and the
+#: fallback, and the compiled kernels of the ``fast`` extra.
+PATHS = pytest.mark.parametrize(
     "compiled",
     [
         False,
@@ -57,14 +59,24 @@ def _payload(rng: np.random.Generator) -> Payload:
     ],
     ids=["numpy", "compiled"],
 )
+
+
+def _path(monkeypatch: pytest.MonkeyPatch, compiled: bool) -> None:
+    monkeypatch.setattr(body_kernel, "AVAILABLE", compiled)
+    monkeypatch.setattr(chain_dynamics, "AVAILABLE", compiled)
+
+
+@PATHS
 def test_lanes_with_their_own_inertias_have_their_own_models_dynamics(
     compiled: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """a and the holding torques of random lanes, each with its own payload (or the batch's
     model, or a random inertia on another joint's body), are Pinocchio's ABA / RNEA on that
     lane's own model: lanes with no lock, every joint locked, one free joint, random locks.
-    The payload bodies' motions by NumPy and by the compiled kernel (the ``fast`` extra)."""
-    monkeypatch.setattr(body_kernel, "AVAILABLE", compiled)
+    The payload bodies' motions by NumPy and the RNEA columns, and by the compiled kernels
+    (the ``fast`` extra: :mod:`vtm_pin.physics.chain_dynamics` for every state with locks or
+    its own inertias)."""
+    _path(monkeypatch, compiled)
     robot = vp.load_robot("ur10")
     base, n = robot.model, robot.nv
     rng = np.random.default_rng(27)
@@ -81,6 +93,7 @@ def test_lanes_with_their_own_inertias_have_their_own_models_dynamics(
         else:
             models.append(attach_payload(robot, _payload(rng)).model)
     dynamics = _Dynamics(base, threads=1, models=models)
+    assert dynamics.compiled is compiled
     assert dynamics.loaded.tolist() == [r % 6 != 0 for r in range(B)]
     q = rng.uniform(-3.0, 3.0, (B, n))
     v = rng.uniform(-2.0, 2.0, (B, n))
@@ -126,10 +139,15 @@ def test_models_differing_in_inertias_only_share_a_batch_key() -> None:
     assert batch_key(moved) != batch_key(robot.model)
 
 
-def test_runs_with_drawn_payloads_are_batched_and_agree_with_the_scalar_engine() -> None:
+@PATHS
+def test_runs_with_drawn_payloads_are_batched_and_agree_with_the_scalar_engine(
+    compiled: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """16 UR10 stops, each with its own payload, go through run_many as one batch and end
     as the scalar engine's: brake events within 1e-10 s and final states within 1e-8 (the
-    issue's tolerance; record figures are checked in tests/test_batch_agreement.py)."""
+    issue's tolerance; record figures are checked in tests/test_batch_agreement.py), on
+    either path of the batched engine."""
+    _path(monkeypatch, compiled)
     raw = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
     raw["duration"] = 0.6  # [s] the stops are over by then
     scenario = vp.build_scenario(raw, source="test", base_dir=SCENARIOS_DIR, name="payloads")
@@ -142,6 +160,7 @@ def test_runs_with_drawn_payloads_are_batched_and_agree_with_the_scalar_engine()
     batched = run_many(problems, integrators, min_lanes=16)
     scalar = run_many(problems, integrators, engine="scalar")
     assert batched.engines == ("batched",) * 16
+    assert (batched.kernel_states > 0) is compiled
     for one, other in zip(scalar.results, batched.results, strict=True):
         assert isinstance(one, vp.SimulationResult) and isinstance(other, vp.SimulationResult)
         assert [(e.joint, e.kind) for e in one.brake_events] == [

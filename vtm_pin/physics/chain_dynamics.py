@@ -1,0 +1,307 @@
+r"""Forward dynamics with locked joints over many states, each with its own bodies, compiled.
+
+The batched engine evaluates, at every Runge-Kutta stage, the states of its lanes whose phase
+has joints locked, or whose bodies' inertias (a payload's) differ from the batch's model. With
+L the locked coordinates and f the free ones (v_L = 0, a_L = 0):
+
+.. math:: M_{ff}\, a_f = \tau_f - b_f, \qquad \lambda_L = M_{Lf}\, a_f + b_L - \tau_L,
+
+with b = RNEA(q, v, 0) (gravity included) and lambda the locks' holding torques (0 at free
+joints). Its NumPy path (:class:`vtm_pin.core.batch._Dynamics`) gets M's free columns and b from
+1 + k batched Pinocchio RNEA passes, adds a payload's terms through its body's Jacobian, and
+solves with LAPACK: a few dozen array operations a call. This module computes the same, state
+by state, compiled by Numba (the ``fast`` extra), in the world frame at the world's origin,
+where a subtree's spatial inertia is the plain sum of its bodies':
+
+- each joint's placement, motion subspace S_j, the bodies' velocities V_j and their
+  accelerations C_j at a = 0 with gravity (C_0 = -g), as
+  :mod:`~vtm_pin.physics.body_kernel` computes them;
+- each body's spatial inertia in the world at the origin, from its mass m, first moment
+  h = m c and rotational inertia I_o about its joint's origin (Pinocchio's dynamic
+  parameters): h_w = R h + m p and I_O = R I_o R^T - [R h]x [p]x - [p]x [R h]x - m [p]x^2;
+  it maps a motion (v, w) to the force (m v - h_w x w, h_w x v + I_O w);
+- the composite inertia Ic_j of joint j's subtree: M_kj = S_k . (Ic_j S_j) for every k that
+  carries j (plus the armature on the diagonal);
+- the bodies' forces f_j = I_j C_j + V_j x* I_j V_j, summed over each subtree (F_j):
+  b_j = S_j . F_j;
+- M_ff a_f = tau_f - b_f by Cholesky (M_ff is positive definite; a pivot that is not
+  positive gives NaN accelerations for that state alone, as a singular LAPACK solve does).
+
+Exact up to round-off: agrees with Pinocchio's RNEA and CRBA to ~1e-15 relative
+(``tests/test_chain_dynamics.py``). Without Numba, or with ``NUMBA_DISABLE_JIT=1``
+(:data:`AVAILABLE` False), the batched engine keeps its NumPy path. The first call of a
+process compiles the kernel (a few seconds) unless Numba's cache beside this file holds it.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import numpy as np
+
+from . import body_kernel
+
+#: Whether the compiled kernel runs (as :data:`vtm_pin.physics.body_kernel.AVAILABLE`).
+AVAILABLE = body_kernel.AVAILABLE
+
+
+def locked_dynamics(
+    chain: Any,
+    qs: np.ndarray,
+    vs: np.ndarray,
+    taus: np.ndarray,
+    locked: np.ndarray,
+    parameters: np.ndarray,
+    which: np.ndarray,
+    armature: np.ndarray,
+    gravity: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Accelerations and holding torques of states with locks, compiled (module docstring).
+
+    Args:
+        chain: The model's joints (:func:`~vtm_pin.physics.kinematics.joint_chain`).
+        qs: Configurations [rad or m], shape (B, nq).
+        vs: Rates [rad/s or m/s], shape (B, nv), exactly 0 at locked joints.
+        taus: Applied torques [N m or N], shape (B, nv).
+        locked: Lock masks, shape (B, nv).
+        parameters: Bodies' dynamic parameters, Pinocchio's ``toDynamicParameters`` of each
+            joint's body (m [kg], h = m c [kg m], I_o [kg m^2]: xx, xy, yy, xz, yz, zz about the
+            joint's origin, in its frame), shape (P, njoints, 10).
+        which: Each state's row of ``parameters``, shape (B,).
+        armature: The model's armature [kg m^2], shape (nv,).
+        gravity: The model's gravity as a spatial acceleration [m/s^2], shape (6,).
+
+    Returns:
+        ``(a, lam)``: accelerations [rad/s^2] (0 at locked joints) and holding torques [N m]
+        (0 at free joints), shapes (B, nv).
+    """
+    count, nv = len(qs), vs.shape[1]
+    a, lam = np.zeros((count, nv)), np.zeros((count, nv))
+    _compiled()(
+        np.array(chain.parents, dtype=np.int64),
+        np.ascontiguousarray(chain.rotations, dtype=float),
+        np.ascontiguousarray(chain.translations, dtype=float),
+        np.ascontiguousarray(chain.axes, dtype=float),
+        np.array(chain.revolute, dtype=np.bool_),
+        np.array(chain.index, dtype=np.int64),
+        np.ascontiguousarray(qs, dtype=float),
+        np.ascontiguousarray(vs, dtype=float),
+        np.ascontiguousarray(taus, dtype=float),
+        np.ascontiguousarray(locked, dtype=np.bool_),
+        np.ascontiguousarray(parameters, dtype=float),
+        np.ascontiguousarray(which, dtype=np.int64),
+        np.ascontiguousarray(armature, dtype=float),
+        np.ascontiguousarray(gravity, dtype=float),
+        a,
+        lam,
+    )
+    return a, lam
+
+
+def _world_inertia(
+    theta: np.ndarray,
+    R: np.ndarray,
+    p: np.ndarray,
+    h: np.ndarray,
+    inertia: np.ndarray,
+    work: np.ndarray,
+) -> float:
+    """A body's first moment h [kg m] and inertia [kg m^2] about the world's origin; its mass."""
+    m = theta[0]
+    local, turned, rh = work[:3], work[3:6], work[6]
+    local[0, 0], local[0, 1], local[1, 1] = theta[4], theta[5], theta[6]
+    local[0, 2], local[1, 2], local[2, 2] = theta[7], theta[8], theta[9]
+    local[1, 0], local[2, 0], local[2, 1] = theta[5], theta[7], theta[8]
+    for r in range(3):
+        rh[r] = R[r, 0] * theta[1] + R[r, 1] * theta[2] + R[r, 2] * theta[3]
+        h[r] = rh[r] + m * p[r]
+        for c in range(3):  # (R I_o) row r
+            turned[r, c] = R[r, 0] * local[0, c] + R[r, 1] * local[1, c] + R[r, 2] * local[2, c]
+    ph = p[0] * rh[0] + p[1] * rh[1] + p[2] * rh[2]
+    pp = p[0] * p[0] + p[1] * p[1] + p[2] * p[2]
+    for r in range(3):  # R I_o R^T - [rh]x [p]x - [p]x [rh]x - m [p]x^2, written out
+        for c in range(3):
+            shift = -(rh[c] * p[r] + p[c] * rh[r]) - m * p[r] * p[c]
+            if r == c:
+                shift += 2.0 * ph + m * pp
+            rotated = turned[r, 0] * R[c, 0] + turned[r, 1] * R[c, 1] + turned[r, 2] * R[c, 2]
+            inertia[r, c] = rotated + shift
+    return m
+
+
+def _dot6(x: np.ndarray, y: np.ndarray) -> float:
+    return x[0] * y[0] + x[1] * y[1] + x[2] * y[2] + x[3] * y[3] + x[4] * y[4] + x[5] * y[5]
+
+
+def _apply(
+    m: float, h: np.ndarray, inertia: np.ndarray, motion: np.ndarray, out: np.ndarray
+) -> None:
+    """The force (m v - h x w, h x v + I w) of inertia (m, h, I) on the motion (v, w)."""
+    v, w = motion[:3], motion[3:]
+    out[0] = m * v[0] - (h[1] * w[2] - h[2] * w[1])
+    out[1] = m * v[1] - (h[2] * w[0] - h[0] * w[2])
+    out[2] = m * v[2] - (h[0] * w[1] - h[1] * w[0])
+    out[3] = h[1] * v[2] - h[2] * v[1]
+    out[4] = h[2] * v[0] - h[0] * v[2]
+    out[5] = h[0] * v[1] - h[1] * v[0]
+    for r in range(3):
+        out[3 + r] += inertia[r, 0] * w[0] + inertia[r, 1] * w[1] + inertia[r, 2] * w[2]
+
+
+def _force(
+    m: float,
+    h: np.ndarray,
+    inertia: np.ndarray,
+    V: np.ndarray,
+    C: np.ndarray,
+    out: np.ndarray,
+    work: np.ndarray,
+) -> None:
+    """A body's force I C + V x* (I V): (w x f, w x n + v x f) for the momentum (f, n) = I V."""
+    _apply(m, h, inertia, C, out)
+    _apply(m, h, inertia, V, work)
+    v, w = V[:3], V[3:]
+    f, n = work[:3], work[3:]
+    out[0] += w[1] * f[2] - w[2] * f[1]
+    out[1] += w[2] * f[0] - w[0] * f[2]
+    out[2] += w[0] * f[1] - w[1] * f[0]
+    out[3] += w[1] * n[2] - w[2] * n[1] + v[1] * f[2] - v[2] * f[1]
+    out[4] += w[2] * n[0] - w[0] * n[2] + v[2] * f[0] - v[0] * f[2]
+    out[5] += w[0] * n[1] - w[1] * n[0] + v[0] * f[1] - v[1] * f[0]
+
+
+def _cholesky(M: np.ndarray, free: np.ndarray, k: int, L: np.ndarray) -> None:
+    """L L^T = M_ff of the first ``k`` indices ``free``; NaN from a pivot that is not positive."""
+    for r in range(k):
+        for c in range(r + 1):
+            s = M[free[r], free[c]]
+            for m in range(c):
+                s -= L[r, m] * L[c, m]
+            if r == c:
+                L[r, r] = np.sqrt(s) if s > 0.0 else np.nan
+            else:
+                L[r, c] = s / L[c, c]
+
+
+def _solve(
+    M: np.ndarray,
+    b: np.ndarray,
+    tau: np.ndarray,
+    locked: np.ndarray,
+    a: np.ndarray,
+    lam: np.ndarray,
+    L: np.ndarray,
+    free: np.ndarray,
+    x: np.ndarray,
+) -> None:
+    """a_f from M_ff a_f = tau_f - b_f (Cholesky), a_L = 0; lam_L = M_Lf a_f + b_L - tau_L."""
+    nv = b.size
+    k = 0
+    for i in range(nv):
+        a[i] = 0.0
+        lam[i] = 0.0
+        if not locked[i]:
+            free[k] = i
+            k += 1
+    _cholesky(M, free, k, L)
+    for r in range(k):  # L y = tau_f - b_f, then L^T x = y
+        s = tau[free[r]] - b[free[r]]
+        for m in range(r):
+            s -= L[r, m] * x[m]
+        x[r] = s / L[r, r]
+    for r in range(k - 1, -1, -1):
+        s = x[r]
+        for m in range(r + 1, k):
+            s -= L[m, r] * x[m]
+        x[r] = s / L[r, r]
+        a[free[r]] = x[r]
+    for i in range(nv):
+        if locked[i]:
+            s = b[i] - tau[i]
+            for r in range(k):
+                s += M[i, free[r]] * x[r]
+            lam[i] = s
+
+
+def _kernel(
+    parents: np.ndarray,
+    rotations: np.ndarray,
+    translations: np.ndarray,
+    axes: np.ndarray,
+    revolute: np.ndarray,
+    index: np.ndarray,
+    qs: np.ndarray,
+    vs: np.ndarray,
+    taus: np.ndarray,
+    locked: np.ndarray,
+    parameters: np.ndarray,
+    which: np.ndarray,
+    armature: np.ndarray,
+    gravity: np.ndarray,
+    a: np.ndarray,
+    lam: np.ndarray,
+) -> None:
+    """Fill a and lam state by state (see :func:`locked_dynamics` and the module docstring)."""
+    count, nv = parents.size, vs.shape[1]
+    R, p = np.zeros((count, 3, 3)), np.zeros((count, 3))
+    S, V, C = np.zeros((count, 6)), np.zeros((count, 6)), np.zeros((count, 6))
+    place, move = np.empty((5, 3)), np.empty((3, 6))
+    mass, h, inertia = np.zeros(count), np.zeros((count, 3)), np.zeros((count, 3, 3))
+    cm, ch, ci = np.zeros(count), np.zeros((count, 3)), np.zeros((count, 3, 3))
+    F, G, work = np.zeros((count, 6)), np.empty(6), np.empty(6)
+    M, b = np.zeros((nv, nv)), np.zeros(nv)
+    L, free, x = np.zeros((nv, nv)), np.zeros(nv, dtype=np.int64), np.zeros(nv)
+    turn = np.empty((7, 3))
+    for i in range(3):
+        R[0, i, i] = 1.0
+    for s in range(qs.shape[0]):
+        for r in range(6):
+            C[0, r] = -gravity[r]
+        theta = parameters[which[s]]
+        for j in range(1, count):
+            parent = parents[j]
+            angle, rate = qs[s, index[j]], vs[s, index[j]]
+            turns = revolute[j]
+            _place(j, parent, rotations[j], translations[j], axes[j], turns, angle, R, p, S, place)
+            _move(j, parent, rate, S, V, C, move)
+            mass[j] = _world_inertia(theta[j], R[j], p[j], h[j], inertia[j], turn)
+            _force(mass[j], h[j], inertia[j], V[j], C[j], F[j], work)
+            cm[j] = mass[j]
+            ch[j] = h[j]
+            ci[j] = inertia[j]
+        for j in range(count - 1, 0, -1):  # subtrees: parents come before their children
+            b[index[j]] = _dot6(S[j], F[j])
+            parent = parents[j]
+            if parent > 0:
+                F[parent] += F[j]
+                cm[parent] += cm[j]
+                ch[parent] += ch[j]
+                ci[parent] += ci[j]
+        M[:, :] = 0.0
+        for j in range(1, count):
+            _apply(cm[j], ch[j], ci[j], S[j], G)
+            k = j
+            while k > 0:
+                M[index[k], index[j]] = _dot6(S[k], G)
+                M[index[j], index[k]] = M[index[k], index[j]]
+                k = parents[k]
+            M[index[j], index[j]] += armature[index[j]]
+        _solve(M, b, taus[s], locked[s], a[s], lam[s], L, free, x)
+
+
+@functools.cache
+def _compiled() -> Any:
+    """The kernel, compiled at the first call of a process (with body_kernel's helpers)."""
+    import numba
+
+    body_kernel._compiled()  # its placement and motion helpers, compiled under their names
+    jit = numba.njit(cache=True)
+    globals().update(_place=body_kernel._place, _move=body_kernel._move)
+    helpers = (_world_inertia, _dot6, _apply, _force, _cholesky, _solve)
+    globals().update({f.__name__: jit(f) for f in helpers})
+    return jit(_kernel)
+
+
+_place = body_kernel._place
+_move = body_kernel._move
