@@ -142,9 +142,7 @@ class _Hybrid:
         ]
         pure = not (frames or self.frames) and len(set(joints)) == len(joints)
         if pure and self.rule_name == "kkt" and at_rest(self.v, self.locked, joints):
-            model, data = weightless_model(self.robot)  # M v- by RNEA: neither M nor a solve
-            p = pin.rnea(model, data, self.q, np.zeros(self.robot.nv), self.v)
-            result = joint_lock_at_rest(p, self.v, self.locked, joints)
+            result = joint_lock_at_rest(self.momentum(), self.v, self.locked, joints)
         elif pure and self.rule_name == "kkt" and self.reduced:
             result = self.joint_lock(joints)
         elif pure and self.rule_name == "kkt":
@@ -169,6 +167,22 @@ class _Hybrid:
         self.frames = self.frames + frames
         self.v = result.v_plus.copy()
         self.v[self.locked] = 0.0
+
+    def momentum(self) -> np.ndarray:
+        """M v [N m s] by RNEA (neither M nor a solve).
+
+        On the weightless model, which the reduced loops' transitions use anyway (then equal to
+        theirs to the bit); the batched engine's loops (not reduced) build none per robot:
+        there RNEA(q, 0, v) on the full model, less its gravity load g(q) (equal to round-off,
+        ~1e-16 relative to g).
+        """
+        zero = np.zeros(self.robot.nv)
+        if self.reduced:
+            model, data = weightless_model(self.robot)
+            return pin.rnea(model, data, self.q, zero, self.v)
+        model, data = self.robot.model, self.data
+        gravity = pin.computeGeneralizedGravity(model, data, self.q).copy()
+        return pin.rnea(model, data, self.q, zero, self.v) - gravity
 
     def joint_lock(self, joints: Sequence[int]) -> TransitionResult:
         """The kkt rule's jump for pure joint locks, in O(n) without forming M.

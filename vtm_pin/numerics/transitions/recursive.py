@@ -18,6 +18,7 @@ equations.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -168,10 +169,21 @@ def _split(
     n: int, locked_before: Sequence[int], joints: Sequence[int]
 ) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the locked coordinates (J1 rows, then J2) and of the free ones, in order."""
+    return _split_cached(n, (*locked_before,), (*joints,))
+
+
+@functools.lru_cache(maxsize=1024)
+def _split_cached(
+    n: int, locked_before: tuple[int, ...], joints: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_split` of a lock set, kept (read only): a study's runs lock the same few sets."""
     locked = np.array([*locked_before, *joints], dtype=np.intp)
     free = np.ones(n, dtype=bool)
     free[locked] = False
-    return locked, np.flatnonzero(free)
+    out = (locked, np.flatnonzero(free))
+    for array in out:
+        array.flags.writeable = False
+    return out
 
 
 def _result(
