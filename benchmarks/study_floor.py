@@ -89,11 +89,13 @@ def pinocchio_work(
 ) -> tuple[float, float, int, pin.Model, dict[str, float]]:
     """Per case, the states evaluated and the batched engine's Pinocchio passes; batch size.
 
-    Also the engine's lane-by-lane work per case (:attr:`BatchOutcome.lane_python`).
+    Also the engine's lane-by-lane work per case (:attr:`BatchOutcome.lane_python`), and the
+    states the compiled kernel evaluated (``kernel states``).
 
     The states are the right-hand sides and the output samples (whose holding torques the
     table reads): an engine evaluates each at least once. The batched engine takes 1 + k RNEA
-    passes for a state with locks (b and k free columns of M).
+    passes for a state with locks (b and k free columns of M), or one compiled pass with the
+    ``fast`` extra (:mod:`vtm_pin.physics.chain_dynamics`).
     """
     robots = RobotCache()
     scenarios = [
@@ -115,6 +117,7 @@ def pinocchio_work(
     states = statistics.fmean(r.rhs_evals + len(r.t) for r in results)
     batch = max(1, outcome.states // outcome.calls)
     lanes = {name: count / len(tasks) for name, count in outcome.lane_python.items()}
+    lanes["kernel states (compiled, not Python)"] = outcome.kernel_states / len(tasks)
     return states, outcome.states / len(tasks), batch, scenarios[0].problem.robot.model, lanes
 
 
