@@ -7,7 +7,9 @@ the records' mean build, simulate and report times (their sum is what a worker s
 :func:`vtm_pin.study.runner.run_cases` (batched engine, one chunk), and the batched engine's
 states and Pinocchio passes per case from :func:`vtm_pin.core.batch.run_many` on the same cases. It
 times ``pin.rneaInParallel`` and ``pin.abaInParallel`` (1 thread, as in a worker) on batches of the
-study's model states, of the engine's mean batch size, and the import of the command
+study's model states, as many as the batch's runs (a stage evaluates up to all of them in one
+call; the engine's own Pinocchio calls are fewer with the compiled kernel), and the import of the
+command
 (``import vtm_pin.cli`` in a fresh interpreter, less an empty one).
 
 From these it prints a budget: a target of ``--target`` s for ``--total`` cases on
@@ -115,7 +117,7 @@ def pinocchio_work(
     )
     results = [r for r in outcome.results if isinstance(r, SimulationResult)]
     states = statistics.fmean(r.rhs_evals + len(r.t) for r in results)
-    batch = max(1, outcome.states // outcome.calls)
+    batch = len(outcome.results)  # the runs stepped together
     lanes = {name: count / len(tasks) for name, count in outcome.lane_python.items()}
     lanes["kernel states (compiled, not Python)"] = outcome.kernel_states / len(tasks)
     return states, outcome.states / len(tasks), batch, scenarios[0].problem.robot.model, lanes
