@@ -633,6 +633,11 @@ def _apply_time_events(h: _Hybrid, queue: list[TimeEvent], t: float) -> bool:
     return changed
 
 
+#: A sample's constraint drift where no frame constraint is active (NaN, NaN).
+_NO_DRIFT = np.full(2, np.nan)
+_NO_DRIFT.flags.writeable = False
+
+
 class _Trace:
     """The samples of a run, collected block by block (a segment, or one state)."""
 
@@ -686,8 +691,8 @@ class _Trace:
             t=segment.t,
             q=q,
             v=v,
-            free=np.repeat(topology.free_mask[None], size, axis=0),
-            modes=np.repeat(np.array(h.machine.modes, dtype=np.int8)[None], size, axis=0),
+            free=np.broadcast_to(topology.free_mask, (size, n)),  # views: copied once, at the end
+            modes=np.broadcast_to(np.array(h.machine.modes, dtype=np.int8), (size, n)),
             extras=extras,
             hold=hold,
             drift=phase.constraint_drift(segment.y),
@@ -704,11 +709,11 @@ class _Trace:
             t=piece.t,
             q=y[:, :n],
             v=y[:, n : 2 * n],
-            free=np.repeat(free[None], size, axis=0),
-            modes=np.repeat(np.array(h.machine.modes, dtype=np.int8)[None], size, axis=0),
+            free=np.broadcast_to(free, (size, n)),  # views: copied once, at the end
+            modes=np.broadcast_to(np.array(h.machine.modes, dtype=np.int8), (size, n)),
             extras=y[:, 2 * n :],
             hold=piece.holding,
-            drift=np.full((size, 2), np.nan),
+            drift=np.broadcast_to(_NO_DRIFT, (size, 2)),
         )
         return y[-1, :n].copy(), y[-1, n : 2 * n].copy(), y[-1, 2 * n :].copy()
 
