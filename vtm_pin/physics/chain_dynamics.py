@@ -224,6 +224,56 @@ def _solve(
             lam[i] = s
 
 
+def _subtrees(
+    parents: np.ndarray,
+    index: np.ndarray,
+    S: np.ndarray,
+    F: np.ndarray,
+    cm: np.ndarray,
+    ch: np.ndarray,
+    ci: np.ndarray,
+    b: np.ndarray,
+) -> None:
+    """Sum forces and inertias over subtrees (parents come before children); b_j = S_j . F_j."""
+    for j in range(parents.size - 1, 0, -1):
+        b[index[j]] = _dot6(S[j], F[j])
+        parent = parents[j]
+        if parent > 0:
+            cm[parent] += cm[j]
+            for r in range(6):  # element by element: no temporary arrays
+                F[parent, r] += F[j, r]
+            for r in range(3):
+                ch[parent, r] += ch[j, r]
+                for c in range(3):
+                    ci[parent, r, c] += ci[j, r, c]
+
+
+def _mass_matrix(
+    parents: np.ndarray,
+    index: np.ndarray,
+    S: np.ndarray,
+    cm: np.ndarray,
+    ch: np.ndarray,
+    ci: np.ndarray,
+    armature: np.ndarray,
+    M: np.ndarray,
+    G: np.ndarray,
+) -> None:
+    """M_kj = S_k . (Ic_j S_j) for every k that carries j, the armature on the diagonal."""
+    nv = M.shape[0]
+    for r in range(nv):
+        for c in range(nv):
+            M[r, c] = 0.0
+    for j in range(1, parents.size):
+        _apply(cm[j], ch[j], ci[j], S[j], G)
+        k = j
+        while k > 0:
+            M[index[k], index[j]] = _dot6(S[k], G)
+            M[index[j], index[k]] = M[index[k], index[j]]
+            k = parents[k]
+        M[index[j], index[j]] += armature[index[j]]
+
+
 def _kernel(
     parents: np.ndarray,
     rotations: np.ndarray,
@@ -268,25 +318,12 @@ def _kernel(
             mass[j] = _world_inertia(theta[j], R[j], p[j], h[j], inertia[j], turn)
             _force(mass[j], h[j], inertia[j], V[j], C[j], F[j], work)
             cm[j] = mass[j]
-            ch[j] = h[j]
-            ci[j] = inertia[j]
-        for j in range(count - 1, 0, -1):  # subtrees: parents come before their children
-            b[index[j]] = _dot6(S[j], F[j])
-            parent = parents[j]
-            if parent > 0:
-                F[parent] += F[j]
-                cm[parent] += cm[j]
-                ch[parent] += ch[j]
-                ci[parent] += ci[j]
-        M[:, :] = 0.0
-        for j in range(1, count):
-            _apply(cm[j], ch[j], ci[j], S[j], G)
-            k = j
-            while k > 0:
-                M[index[k], index[j]] = _dot6(S[k], G)
-                M[index[j], index[k]] = M[index[k], index[j]]
-                k = parents[k]
-            M[index[j], index[j]] += armature[index[j]]
+            for r in range(3):  # element by element: no temporary arrays
+                ch[j, r] = h[j, r]
+                for c in range(3):
+                    ci[j, r, c] = inertia[j, r, c]
+        _subtrees(parents, index, S, F, cm, ch, ci, b)
+        _mass_matrix(parents, index, S, cm, ch, ci, armature, M, G)
         _solve(M, b, taus[s], locked[s], a[s], lam[s], L, free, x)
 
 
@@ -298,7 +335,7 @@ def _compiled() -> Any:
     body_kernel._compiled()  # its placement and motion helpers, compiled under their names
     jit = numba.njit(cache=True)
     globals().update(_place=body_kernel._place, _move=body_kernel._move)
-    helpers = (_world_inertia, _dot6, _apply, _force, _cholesky, _solve)
+    helpers = (_world_inertia, _dot6, _apply, _force, _subtrees, _mass_matrix, _cholesky, _solve)
     globals().update({f.__name__: jit(f) for f in helpers})
     return jit(_kernel)
 
