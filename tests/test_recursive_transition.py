@@ -91,6 +91,18 @@ def test_locking_joints_at_rest_changes_nothing_exactly(name: str) -> None:
     np.testing.assert_array_equal(fast.Lambda, 0.0)
 
 
+def _drawn_lock_at_rest(n: int, seed: int, data: st.DataObject) -> tuple:
+    """A spatial n-link chain, a state, and joints locked before and now, all at rest."""
+    robot = build_chain(n, spatial=True)
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1.5, 1.5, n)
+    v = rng.uniform(-2.0, 2.0, n)
+    joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
+    split = data.draw(st.integers(0, len(joints) - 1))
+    v[joints] = 0.0
+    return robot, q, v, joints[:split], joints[split:]
+
+
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(n=st.integers(2, 12), seed=st.integers(0, 2**31 - 1), data=st.data())
 def test_the_dense_lock_at_rest_is_the_general_one(n, seed, data) -> None:
@@ -98,14 +110,8 @@ def test_the_dense_lock_at_rest_is_the_general_one(n, seed, data) -> None:
     v+ = v- and no impulse to the bit, no energy lost, the free momentum (M v)_f kept, as the
     general steps give them (M times a zero dv) and as kkt does to round-off; with a locking
     rate not 0 it is not taken."""
-    robot = build_chain(n, spatial=True)
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(-1.5, 1.5, n)
-    v = rng.uniform(-2.0, 2.0, n)
-    joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
-    split = data.draw(st.integers(0, len(joints) - 1))
-    before, now = joints[:split], joints[split:]
-    v[joints] = 0.0
+    robot, q, v, before, now = _drawn_lock_at_rest(n, seed, data)
+    joints = [*before, *now]
     M = compute_M(robot.model, robot.model.createData(), q)
     fast = compute_joint_lock_transition_dense(M, v, before, now)
     free = [i for i in range(n) if i not in joints]
@@ -124,17 +130,11 @@ def test_the_dense_lock_at_rest_is_the_general_one(n, seed, data) -> None:
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(n=st.integers(2, 12), seed=st.integers(0, 2**31 - 1), data=st.data())
 def test_the_lock_at_rest_from_the_momentum_is_the_recursive_one_to_the_bit(n, seed, data) -> None:
-    """A run's lock at rest (both engines' hybrid loops) takes M v- from one RNEA pass on the
+    """A lock at rest in the scalar engine's loop takes M v- from one RNEA pass on the
     weightless model and builds no reduced model: every field equals the recursive rule's, to
-    the bit (with zero locked rates its solve and products give exact zeros)."""
-    robot = build_chain(n, spatial=True)
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(-1.5, 1.5, n)
-    v = rng.uniform(-2.0, 2.0, n)
-    joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
-    split = data.draw(st.integers(0, len(joints) - 1))
-    before, now = joints[:split], joints[split:]
-    v[joints] = 0.0
+    the bit (with zero locked rates its solve and products give exact zeros). (The batched
+    engine's loop takes M v- another way: tests/test_simulation.py.)"""
+    robot, q, v, before, now = _drawn_lock_at_rest(n, seed, data)
     model = weightless(robot.model)
     assert at_rest(v, before, now)
     p = pin.rnea(model, model.createData(), q, np.zeros(n), v)

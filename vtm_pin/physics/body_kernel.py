@@ -40,12 +40,7 @@ def body_motions(
     V = np.empty((count, picked.size, 6))
     C = np.empty((count, picked.size, 6))
     _compiled()(
-        np.array(chain.parents, dtype=np.int64),
-        np.ascontiguousarray(chain.rotations, dtype=float),
-        np.ascontiguousarray(chain.translations, dtype=float),
-        np.ascontiguousarray(chain.axes, dtype=float),
-        np.array(chain.revolute, dtype=np.bool_),
-        np.array(chain.index, dtype=np.int64),
+        *chain_arrays(chain),
         np.ascontiguousarray(qs, dtype=float),
         np.ascontiguousarray(vs, dtype=float),
         picked,
@@ -55,6 +50,22 @@ def body_motions(
         C,
     )
     return J, V, C
+
+
+def chain_arrays(chain: Any) -> tuple[np.ndarray, ...]:
+    """A :class:`~vtm_pin.physics.kinematics.JointChain` as the compiled kernels take it.
+
+    Its parents, fixed rotations and translations, axes, revolute flags and coordinates,
+    contiguous.
+    """
+    return (
+        np.array(chain.parents, dtype=np.int64),
+        np.ascontiguousarray(chain.rotations, dtype=float),
+        np.ascontiguousarray(chain.translations, dtype=float),
+        np.ascontiguousarray(chain.axes, dtype=float),
+        np.array(chain.revolute, dtype=np.bool_),
+        np.array(chain.index, dtype=np.int64),
+    )
 
 
 def _cross(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:

@@ -79,12 +79,7 @@ def locked_dynamics(
     count, nv = len(qs), vs.shape[1]
     a, lam = np.zeros((count, nv)), np.zeros((count, nv))
     _compiled()(
-        np.array(chain.parents, dtype=np.int64),
-        np.ascontiguousarray(chain.rotations, dtype=float),
-        np.ascontiguousarray(chain.translations, dtype=float),
-        np.ascontiguousarray(chain.axes, dtype=float),
-        np.array(chain.revolute, dtype=np.bool_),
-        np.array(chain.index, dtype=np.int64),
+        *body_kernel.chain_arrays(chain),
         np.ascontiguousarray(qs, dtype=float),
         np.ascontiguousarray(vs, dtype=float),
         np.ascontiguousarray(taus, dtype=float),
