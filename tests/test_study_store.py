@@ -196,7 +196,7 @@ def test_a_full_disk_names_the_file_it_could_not_write(
 
     path = write_study(tmp_path, SMALL)
     out = tmp_path / "out"
-    monkeypatch.setattr(study_runner.tempfile, "mkstemp", full)
+    monkeypatch.setattr(study_runner, "_create", full)
     code, err = rerun(path, out, capsys)
     line = one_error_line(err)
     assert code == 1 and "No space left on device" in line and str(out) in line
@@ -428,3 +428,38 @@ def test_a_large_study_needs_yes_in_a_script(
     assert "3 cases, more than 2" in line and "--yes" in line and str(path) in line
     assert not out.exists()
     assert main(["study", str(path), "--out", str(out), "--yes", "--quiet", "--workers", "1"]) == 0
+
+
+def test_a_record_is_written_whole_through_a_temporary_file_of_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The atomic write: the file has its whole text and the mode a new file gets (0o666 less
+    the umask); a temporary name left by a killed process of the same id is skipped, not
+    overwritten; a failed rename leaves no temporary file."""
+    import itertools
+
+    from vtm_pin.study import runner as study_runner
+
+    path = tmp_path / "c1.json"
+    old = os.umask(0o027)
+    try:
+        study_runner._write_atomic(path, '{"a": 1}\n')
+    finally:
+        os.umask(old)
+    assert path.read_text() == '{"a": 1}\n'
+    assert path.stat().st_mode & 0o777 == 0o640
+    assert [p.name for p in tmp_path.iterdir()] == ["c1.json"]
+    monkeypatch.setattr(study_runner, "_TEMPORARY", itertools.count(5))
+    leftover = tmp_path / f".c1.json.{os.getpid()}.5"
+    leftover.write_text("partial")
+    study_runner._write_atomic(path, '{"a": 2}\n')
+    assert path.read_text() == '{"a": 2}\n' and leftover.read_text() == "partial"
+
+    def broken(*args: object) -> None:
+        raise OSError(errno.EIO, os.strerror(errno.EIO))
+
+    monkeypatch.setattr(study_runner.os, "replace", broken)
+    with pytest.raises(OSError):
+        study_runner._write_atomic(path, '{"a": 3}\n')
+    assert sorted(p.name for p in tmp_path.iterdir()) == [leftover.name, "c1.json"]
+    assert path.read_text() == '{"a": 2}\n'

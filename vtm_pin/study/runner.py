@@ -21,6 +21,7 @@ import contextlib
 import dataclasses
 import functools
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -28,7 +29,6 @@ import platform
 import re
 import statistics
 import sys
-import tempfile
 import time
 import warnings
 from collections.abc import Callable, Generator, Mapping, Sequence
@@ -692,27 +692,35 @@ def _write_atomic(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a temporary file in the same folder and a rename.
 
     A killed process leaves the old file or the new one, never a part (and perhaps a
-    temporary ``.NAME.*`` file, which is never read). There is no fsync: the page cache
-    outlives the process, and a case lost to a power cut is run again.
+    temporary ``.NAME.<pid>.<n>`` file, which is never read). There is no fsync: the page
+    cache outlives the process, and a case lost to a power cut is run again. The temporary
+    file is created with mode 0o666 less the umask, as any new file (``os.open``, exclusive:
+    a name left by a killed process of the same id is skipped).
     """
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    data = text.encode()
+    while True:
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{next(_TEMPORARY)}")
+        try:
+            fd = _create(tmp)
+            break
+        except FileExistsError:
+            continue
     try:
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes it private; follow the umask instead
-        with os.fdopen(fd, "w") as file:
-            file.write(text)
+        with open(fd, "wb") as file:
+            file.write(data)
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+def _create(path: Path) -> int:
+    """A new file's descriptor, for writing (mode 0o666 less the umask; it must not exist)."""
+    return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
 
 
-_UMASK = _umask()
+#: Numbers of this process's temporary files (:func:`_write_atomic`).
+_TEMPORARY = itertools.count()
 
 
 def default_workers() -> int:
