@@ -110,6 +110,10 @@ def test_lanes_with_their_own_inertias_have_their_own_models_dynamics(
     own = np.array([not dynamics.loaded[r] for r in lanes])
     np.testing.assert_array_equal(a_plain[own], a[own])  # the same calls, the same bits
     np.testing.assert_array_equal(lam_plain[own], lam[own])
+    shifted = _Dynamics(base, threads=1, models=models[1:] + models[:1])  # lane 0 loaded
+    a_none, lam_none = shifted.accelerations(q, v, tau, locked)  # no lanes: the pool's model
+    np.testing.assert_array_equal(a_none, a_plain)
+    np.testing.assert_array_equal(lam_none, lam_plain)
     for i, r in enumerate(lanes):
         model = models[r]
         data = model.createData()

@@ -73,7 +73,7 @@ def test_the_kernel_is_pinocchios_dynamics_with_locks_on_each_states_own_model(n
     locked = rng.random((B, n)) < 0.5
     locked[0], locked[1], locked[2] = False, True, True
     locked[2, n // 2] = False
-    v[locked] = tau[locked] = 0.0
+    v[locked] = 0.0  # the locked joints' torques stay: lambda_L has - tau_L
     which = rng.integers(0, len(models), B)
     chain = joint_chain(model)
     a, lam = chain_dynamics.locked_dynamics(
@@ -88,7 +88,8 @@ def test_the_kernel_is_pinocchios_dynamics_with_locks_on_each_states_own_model(n
 
 def test_a_singular_free_block_fails_its_state_alone() -> None:
     """A free joint that carries no inertia (a massless last body, no armature) has M_ff = 0:
-    that state's accelerations are NaN, as a singular solve gives; the others are exact."""
+    that state's free acceleration and its holding torques are NaN, as a singular solve
+    gives (its run fails alone); the other state is exact."""
     robot = vp.load_robot("ur10")
     model = pin.Model(robot.model)
     model.armature = np.zeros(model.nv)
@@ -101,11 +102,12 @@ def test_a_singular_free_block_fails_its_state_alone() -> None:
     locked[0, n - 1] = False  # only the massless joint free: singular
     locked[1, 0] = False
     parameters = np.array([[i.toDynamicParameters() for i in model.inertias]])
-    a, _ = chain_dynamics.locked_dynamics(
+    a, lam = chain_dynamics.locked_dynamics(
         joint_chain(model), q, v, tau, locked, parameters, np.zeros(2, dtype=int),
         model.armature, model.gravity.vector,
     )  # fmt: skip
-    assert np.isnan(a[0, n - 1])
+    assert np.isnan(a[0, n - 1]) and np.all(a[0, :-1] == 0.0)
+    assert np.all(np.isnan(lam[0, :-1])) and lam[0, n - 1] == 0.0
     a_ref, _ = _reference(model, q[1], v[1], tau[1], locked[1])
     tolerance = DYNAMICS_TOLERANCE * (1.0 + np.abs(a_ref).max())
     np.testing.assert_allclose(a[1], a_ref, rtol=0, atol=tolerance)

@@ -262,12 +262,12 @@ class _Dynamics:
         if models is not None:
             self._inertias(model, models)
         #: Whether the states with locks go to the compiled kernel; the bodies' dynamic
-        #: parameters it reads (one row per lane if they differ, else the model's), shape
-        #: (P, njoints, 10).
+        #: parameters it reads, shape (P, njoints, 10): the pool model's, then one row per
+        #: lane if their inertias differ (lane r's is row r + 1).
         if chain_dynamics.AVAILABLE and self.chain is None:
             self.chain = joint_chain(model)
         self.compiled = chain_dynamics.AVAILABLE and self.chain is not None
-        some = models if models is not None and self.joints else [model]
+        some = [model, *(models if models is not None and self.joints else ())]
         self.parameters = np.array(
             [[inertia.toDynamicParameters() for inertia in m.inertias] for m in some]
         )
@@ -346,7 +346,7 @@ class _Dynamics:
         """
         if self.compiled:
             self.kernel_states += len(q)
-            which = np.zeros(len(q), dtype=np.int64) if lanes is None else lanes
+            which = np.zeros(len(q), dtype=np.int64) if lanes is None else lanes + 1
             return chain_dynamics.locked_dynamics(
                 self.chain, q, v, tau, locked, self.parameters, which, self.armature, self.gravity
             )

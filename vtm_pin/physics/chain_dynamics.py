@@ -30,7 +30,10 @@ where a subtree's spatial inertia is the plain sum of its bodies':
 Exact up to round-off: agrees with Pinocchio's RNEA and CRBA to ~1e-15 relative
 (``tests/test_chain_dynamics.py``). Without Numba, or with ``NUMBA_DISABLE_JIT=1``
 (:data:`AVAILABLE` False), the batched engine keeps its NumPy path. The first call of a
-process compiles the kernel (a few seconds) unless Numba's cache beside this file holds it.
+process compiles the kernel (~9 s) unless Numba's cache beside this file holds it. Numba
+checks only this file for changes: body_kernel's placement and motion helpers are compiled
+into the cached kernel, so after editing them alone, delete ``__pycache__/chain_dynamics*.nb*``
+(a new install replaces both files and so renews the cache).
 """
 
 from __future__ import annotations
