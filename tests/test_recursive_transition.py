@@ -59,6 +59,21 @@ def test_recursive_lock_equals_kkt_on_arms(name: str) -> None:
         compare(robot.model, q, v, sorted(order[:k].tolist()), [int(order[k])])
 
 
+def _drawn_lock(
+    n: int, seed: int, data: st.DataObject, spatial: bool = True, at_rest: bool = False
+) -> tuple:
+    """An n-link chain, a state, and joints locked before and now (at rest if ``at_rest``)."""
+    robot = build_chain(n, spatial=spatial)
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1.5, 1.5, n)
+    v = rng.uniform(-2.0, 2.0, n)
+    joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
+    split = data.draw(st.integers(0, len(joints) - 1))
+    if at_rest:
+        v[joints] = 0.0
+    return robot, q, v, joints[:split], joints[split:]
+
+
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(
     n=st.integers(2, 30),
@@ -68,13 +83,8 @@ def test_recursive_lock_equals_kkt_on_arms(name: str) -> None:
 )
 def test_recursive_lock_equals_kkt_on_chains(n, spatial, seed, data) -> None:
     """Any lock set on any chain: the same jump, impulses and energy loss as kkt."""
-    robot = build_chain(n, spatial=spatial)
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(-1.5, 1.5, n)
-    v = rng.uniform(-2.0, 2.0, n)
-    joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
-    split = data.draw(st.integers(0, len(joints) - 1))
-    compare(robot.model, q, v, joints[:split], joints[split:])
+    robot, q, v, before, now = _drawn_lock(n, seed, data, spatial)
+    compare(robot.model, q, v, before, now)
 
 
 @pytest.mark.parametrize("name", ["rx160l", "panda"])
@@ -91,18 +101,6 @@ def test_locking_joints_at_rest_changes_nothing_exactly(name: str) -> None:
     np.testing.assert_array_equal(fast.Lambda, 0.0)
 
 
-def _drawn_lock_at_rest(n: int, seed: int, data: st.DataObject) -> tuple:
-    """A spatial n-link chain, a state, and joints locked before and now, all at rest."""
-    robot = build_chain(n, spatial=True)
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(-1.5, 1.5, n)
-    v = rng.uniform(-2.0, 2.0, n)
-    joints = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True))
-    split = data.draw(st.integers(0, len(joints) - 1))
-    v[joints] = 0.0
-    return robot, q, v, joints[:split], joints[split:]
-
-
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(n=st.integers(2, 12), seed=st.integers(0, 2**31 - 1), data=st.data())
 def test_the_dense_lock_at_rest_is_the_general_one(n, seed, data) -> None:
@@ -110,7 +108,7 @@ def test_the_dense_lock_at_rest_is_the_general_one(n, seed, data) -> None:
     v+ = v- and no impulse to the bit, no energy lost, the free momentum (M v)_f kept, as the
     general steps give them (M times a zero dv) and as kkt does to round-off; with a locking
     rate not 0 it is not taken."""
-    robot, q, v, before, now = _drawn_lock_at_rest(n, seed, data)
+    robot, q, v, before, now = _drawn_lock(n, seed, data, at_rest=True)
     joints = [*before, *now]
     M = compute_M(robot.model, robot.model.createData(), q)
     fast = compute_joint_lock_transition_dense(M, v, before, now)
@@ -134,7 +132,7 @@ def test_the_lock_at_rest_from_the_momentum_is_the_recursive_one_to_the_bit(n, s
     weightless model and builds no reduced model: every field equals the recursive rule's, to
     the bit (with zero locked rates its solve and products give exact zeros). (The batched
     engine's loop takes M v- another way: tests/test_simulation.py.)"""
-    robot, q, v, before, now = _drawn_lock_at_rest(n, seed, data)
+    robot, q, v, before, now = _drawn_lock(n, seed, data, at_rest=True)
     model = weightless(robot.model)
     assert at_rest(v, before, now)
     p = pin.rnea(model, model.createData(), q, np.zeros(n), v)
