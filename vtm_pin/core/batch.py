@@ -547,21 +547,26 @@ class BatchEngine:
         start = time.perf_counter()
         q, v = y[:, :n], y[:, n : 2 * n]
         ratio = lanes.ratio[rows]
-        factor = _ramp_factor(lanes, rows, t)
-        motor = ratio * v  # motor speeds [rad/s]
         sign = lanes.sign[rows]
-        slip = np.maximum(sign * motor, 0.0)  # [rad/s] motor side, as Viscous.kinetic
-        kinetic = lanes.torque[rows] * (1.0 + slip * lanes.viscous[rows])
-        tau = -sign * (ratio * (factor * kinetic))
-        tau_short = short_circuit_torque(
-            ratio, lanes.short_torque[rows], lanes.short_speed[rows], v
-        )
-        a, lam = self.dynamics.accelerations(q, v, tau + tau_short, lanes.locked[rows], rows)
+        kinetic = lanes.torque[rows]
+        # Terms no lane has are left out (1 x and x + 0 are exact: the same torques).
+        if lanes.viscous.any():
+            slip = np.maximum(sign * (ratio * v), 0.0)  # [rad/s] motor side, as Viscous.kinetic
+            kinetic = kinetic * (1.0 + slip * lanes.viscous[rows])
+        tau = -sign * (ratio * (_ramp_factor(lanes, rows, t) * kinetic))
+        applied, tau_short = tau, None
+        if lanes.short_torque.any():
+            tau_short = short_circuit_torque(
+                ratio, lanes.short_torque[rows], lanes.short_speed[rows], v
+            )
+            applied = tau + tau_short
+        a, lam = self.dynamics.accelerations(q, v, applied, lanes.locked[rows], rows)
         out = np.zeros_like(y)
         out[:, :n] = v
         out[:, n : 2 * n] = a
         out[:, 2 * n] = -np.einsum("bi,bi->b", tau, v)
-        out[:, 2 * n + 2] = -np.einsum("bi,bi->b", tau_short, v)
+        if tau_short is not None:
+            out[:, 2 * n + 2] = -np.einsum("bi,bi->b", tau_short, v)
         out[:, 2 * n + WORKS :] = tau
         self.seconds["dynamics"] += time.perf_counter() - start
         return out, lam
@@ -1341,8 +1346,13 @@ def _order_events(lanes: _Lanes, rows: np.ndarray) -> None:
     lanes.event_index[rows] = np.argsort(np.argsort(key, axis=1), axis=1)
 
 
-def _ramp_factor(lanes: _Lanes, rows: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """The brakes' normal-force ramp at times t [s]: 0 to 1 over ``ramp`` after engaging."""
+def _ramp_factor(lanes: _Lanes, rows: np.ndarray, t: np.ndarray) -> np.ndarray | float:
+    """The brakes' normal-force ramp at times t [s]: 0 to 1 over ``ramp`` after engaging.
+
+    1.0 where no lane's brake ramps (the factor is then 1 everywhere: the products are exact).
+    """
+    if not lanes.ramp.any():
+        return 1.0
     elapsed = t[:, None] - lanes.engaged[rows]
     ramp = lanes.ramp[rows]
     return np.where(ramp == 0.0, 1.0, np.clip(elapsed / np.where(ramp == 0.0, 1.0, ramp), 0.0, 1.0))
