@@ -633,38 +633,58 @@ def _apply_time_events(h: _Hybrid, queue: list[TimeEvent], t: float) -> bool:
     return changed
 
 
-#: A sample's constraint drift where no frame constraint is active (NaN, NaN).
-_NO_DRIFT = np.full(2, np.nan)
-_NO_DRIFT.flags.writeable = False
-
-
 class _Trace:
-    """The samples of a run, collected block by block (a segment, or one state)."""
+    """The samples of a run, collected block by block (a segment, or one state).
+
+    Per block, what varies by sample is kept as arrays; the free mask and the brakes' modes,
+    constant over a block, as one row each, repeated once at the end (:meth:`result`). The
+    constraint drift is kept for the blocks with frame constraints only (NaN elsewhere).
+    """
 
     def __init__(self, n: int, n_extras: int) -> None:
         self.n = n
         self.n_extras = n_extras
         self.blocks: dict[str, list[np.ndarray]] = {
-            key: [] for key in ("t", "q", "v", "free", "modes", "extras", "hold", "drift")
+            key: [] for key in ("t", "q", "v", "extras", "hold")
         }
+        self.sizes: list[int] = []
+        self.free: list[np.ndarray] = []  # a row per block
+        self.modes: list[tuple[int, ...]] = []  # a row per block
+        self.drift: list[tuple[int, np.ndarray]] = []  # (first sample, drift) of some blocks
+        self.samples = 0
 
-    def _append(self, **arrays: np.ndarray) -> None:
+    def _append(
+        self,
+        free: np.ndarray,
+        modes: Sequence[int],
+        drift: np.ndarray | None = None,
+        **arrays: np.ndarray,
+    ) -> None:
+        size = len(arrays["t"])
         for key, value in arrays.items():
             self.blocks[key].append(value)
+        self.sizes.append(size)
+        self.free.append(free)
+        self.modes.append(tuple(modes))
+        if drift is not None:
+            self.drift.append((self.samples, drift))
+        self.samples += size
+
+    def _free(self, h: _Hybrid) -> np.ndarray:
+        free = np.ones(self.n, dtype=bool)
+        free[h.locked] = False
+        return free
 
     def add_state(self, t: float, h: _Hybrid) -> None:
         """One sample of the hybrid state as it is now (before or after events at ``t``)."""
-        free = np.ones(self.n, dtype=bool)
-        free[h.locked] = False
         self._append(
+            self._free(h),
+            h.machine.modes,
             t=np.array([t]),
             q=h.q[None].copy(),
             v=h.v[None].copy(),
-            free=free[None],
-            modes=np.array(h.machine.modes, dtype=np.int8)[None],
             extras=h.extras[None].copy(),
             hold=np.full((1, self.n), np.nan),
-            drift=np.full((1, 2), np.nan),
         )
 
     def add_segment(
@@ -688,32 +708,29 @@ class _Trace:
                 hold[r, locked] = phase.holding_torque(segment.t[r], segment.y[r])[locked]
         extras = phase.unpack_extras(segment.y, h.extras)
         self._append(
+            topology.free_mask,
+            h.machine.modes,
+            phase.constraint_drift(segment.y) if phase.constraints else None,
             t=segment.t,
             q=q,
             v=v,
-            free=np.broadcast_to(topology.free_mask, (size, n)),  # views: copied once, at the end
-            modes=np.broadcast_to(np.array(h.machine.modes, dtype=np.int8), (size, n)),
             extras=extras,
             hold=hold,
-            drift=phase.constraint_drift(segment.y),
         )
         return q[-1].copy(), v[-1].copy(), extras[-1].copy()
 
     def add_rested(self, piece: Rested, h: _Hybrid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Record a :class:`Rested` interval; the full (q, v, extras) at its end."""
-        n, size = self.n, piece.t.size
-        free = np.ones(n, dtype=bool)
-        free[h.locked] = False
+        n = self.n
         y = piece.y
         self._append(
+            self._free(h),
+            h.machine.modes,
             t=piece.t,
             q=y[:, :n],
             v=y[:, n : 2 * n],
-            free=np.broadcast_to(free, (size, n)),  # views: copied once, at the end
-            modes=np.broadcast_to(np.array(h.machine.modes, dtype=np.int8), (size, n)),
             extras=y[:, 2 * n :],
             hold=piece.holding,
-            drift=np.broadcast_to(_NO_DRIFT, (size, 2)),
         )
         return y[-1, :n].copy(), y[-1, n : 2 * n].copy(), y[-1, 2 * n :].copy()
 
@@ -729,20 +746,24 @@ class _Trace:
     ) -> SimulationResult:
         """The collected samples and the events as a :class:`SimulationResult`."""
         rows = {key: np.concatenate(blocks) for key, blocks in self.blocks.items()}
+        sizes = np.array(self.sizes)
+        drift = np.full((self.samples, 2), np.nan)
+        for first, block in self.drift:
+            drift[first : first + len(block)] = block
         work = rows["extras"]
         return SimulationResult(
             joints=robot.joints,
             t=rows["t"],
             q=rows["q"],
             v=rows["v"],
-            free=rows["free"],
-            modes=rows["modes"],
+            free=np.repeat(np.array(self.free), sizes, axis=0),
+            modes=np.repeat(np.array(self.modes, dtype=np.int8), sizes, axis=0),
             brake_work=work[:, 0],
             drive_work=work[:, 1],
             short_circuit_work=work[:, 2],
             brake_impulse=work[-1, WORKS:].copy(),
             holding=rows["hold"],
-            drift=rows["drift"],
+            drift=drift,
             events=tuple(h.events),
             brake_events=tuple(h.machine.events),
             transition=h.rule_name,
