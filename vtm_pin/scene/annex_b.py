@@ -62,6 +62,7 @@ import pinocchio as pin
 from scipy.optimize import least_squares, minimize
 
 from ..exceptions import ConditionsError, excerpt
+from ..physics.kinematics import pinocchio_data
 from ..physics.robot import Robot
 
 #: Test directions a scenario may ask for.
@@ -296,7 +297,7 @@ def compute_test_state(
     guess = _clip(model, _as_q(model, q_guess))
     q = _extension_pose(model, chain, conditions.extension, guess)
     R = _max_reach(model, chain, guess).R
-    ev = _Evaluator(model, chain, q)
+    ev = _Evaluator(model, chain, q, pinocchio_data(robot))  # a Data costs ~70 us to make
     sign, vertical = _direction(model, ev.column(i), conditions.direction)
     speed = sign * conditions.speed * top
     v = np.zeros(model.nv)
@@ -517,9 +518,11 @@ class _Evaluator:
     after another; one frame Jacobian (which also places the frame) answers them all.
     """
 
-    def __init__(self, model: pin.Model, chain: _Chain, q_base: np.ndarray) -> None:
+    def __init__(
+        self, model: pin.Model, chain: _Chain, q_base: np.ndarray, data: pin.Data | None = None
+    ) -> None:
         self.model = model
-        self.data = model.createData()
+        self.data = model.createData() if data is None else data  # scratch space: all computed
         self.chain = chain
         self.q = q_base.copy()
         self.J6 = np.zeros((6, model.nv))
