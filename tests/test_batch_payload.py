@@ -26,8 +26,9 @@ from vtm_pin.core.batch import (
     robot_model_key,
     run_many,
 )
+from vtm_pin.exceptions import VtmWarning
 from vtm_pin.numerics.dynamics import compute_M
-from vtm_pin.physics import body_kernel, chain_dynamics
+from vtm_pin.physics import body_kernel, chain_dynamics, kinematics
 from vtm_pin.physics.payload import Payload, attach_payload
 from vtm_pin.scene.scenario import SCENARIOS_DIR
 
@@ -214,3 +215,54 @@ def test_a_model_with_min_lanes_runs_keeps_its_own_batch_and_the_rest_are_pooled
     assert reasons == [None] * len(problems)
     _groups(problems, [scenario.integrator] * len(problems), reasons, min_lanes=4)
     assert reasons[-3:] == [FEW_LANES.format(min_lanes=4)] * 3 and reasons[0] is None
+
+
+def test_numba_that_cannot_run_here_leaves_the_numpy_path_with_one_warning(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Numba installed but refusing to import here (a NumPy it does not support) or to compile:
+    the first kernel call says so in one warning, and the NumPy path answers from then on,
+    with the same results, for the locked dynamics and the bodies' motions alike (before, the
+    batch failed and its runs went to the scalar engine)."""
+    robot = vp.load_robot("ur10")
+    base, n = robot.model, robot.nv
+    rng = np.random.default_rng(5)
+    B = 12
+    models = [attach_payload(robot, _payload(rng)).model for _ in range(B)]
+    q = rng.uniform(-3.0, 3.0, (B, n))
+    v = rng.uniform(-2.0, 2.0, (B, n))
+    tau = rng.uniform(-50.0, 50.0, (B, n))
+    locked = rng.random((B, n)) < 0.5
+    v[locked] = tau[locked] = 0.0
+    lanes = np.arange(B)
+    _path(monkeypatch, False)
+    expected = _Dynamics(base, threads=1, models=models).accelerations(q, v, tau, locked, lanes)
+    chain = kinematics.joint_chain(base)
+    motions = kinematics.body_motions(chain, q, v, (6,), base.gravity.vector)
+
+    def refuse() -> None:
+        raise ImportError("Numba needs NumPy 2.3 or less; got NumPy 9.9.\nmore detail")
+
+    _path(monkeypatch, True)
+    monkeypatch.setattr(chain_dynamics, "_compiled", refuse)
+    monkeypatch.setattr(body_kernel, "_compiled", refuse)
+    dynamics = _Dynamics(base, threads=1, models=models)
+    assert dynamics.compiled
+    with pytest.warns(
+        VtmWarning, match=r"cannot run here \(ImportError: Numba needs NumPy 2.3"
+    ) as seen:
+        got = dynamics.accelerations(q, v, tau, locked, lanes)
+        again = dynamics.accelerations(q, v, tau, locked, lanes)
+    assert len(seen) == 1 and "more detail" not in str(seen[0].message)
+    assert not dynamics.compiled and dynamics.kernel_states == 0
+    assert not chain_dynamics.AVAILABLE and not body_kernel.AVAILABLE
+    for one, other in ((expected, got), (expected, again)):
+        np.testing.assert_array_equal(one[0], other[0])
+        np.testing.assert_array_equal(one[1], other[1])
+
+    _path(monkeypatch, True)  # the bodies' motions: their first compiled call falls back too
+    with pytest.warns(VtmWarning, match="cannot run here"):
+        fallen = kinematics.body_motions(chain, q, v, (6,), base.gravity.vector)
+    for one, other in zip(motions, fallen, strict=True):
+        np.testing.assert_array_equal(one, other)
+    assert not body_kernel.AVAILABLE

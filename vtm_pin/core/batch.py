@@ -89,7 +89,7 @@ from ..numerics.integrators import dormand_prince as dp
 from ..numerics.integrators.dop853 import _Grid
 from ..numerics.integrators.fixed_step import locate
 from ..numerics.transitions.recursive import weightless
-from ..physics import chain_dynamics
+from ..physics import body_kernel, chain_dynamics
 from ..physics.brakes import REST_RATE, ROUNDOFF, BrakeMode, StateEventKind
 from ..physics.drives import short_circuit_torque
 from ..physics.friction import Coulomb, Viscous
@@ -345,11 +345,18 @@ class _Dynamics:
         With :attr:`compiled`, one kernel call instead.
         """
         if self.compiled:
-            self.kernel_states += len(q)
             which = np.zeros(len(q), dtype=np.int64) if lanes is None else lanes + 1
-            return chain_dynamics.locked_dynamics(
-                self.chain, q, v, tau, locked, self.parameters, which, self.armature, self.gravity
-            )
+            try:
+                out = chain_dynamics.locked_dynamics(
+                    self.chain, q, v, tau, locked, self.parameters, which, self.armature,
+                    self.gravity,
+                )  # fmt: skip
+            except body_kernel.failures() as exc:  # Numba cannot run here: NumPy from now on
+                body_kernel.fall_back(exc)
+                self.compiled = False
+            else:
+                self.kernel_states += len(q)
+                return out
         n = self.n
         free = ~locked
         b = self._call(pin.rneaInParallel, self.pool, q, v, np.zeros_like(q))

@@ -16,14 +16,51 @@ from __future__ import annotations
 
 import functools
 import os
+import warnings
 from importlib.util import find_spec
 from typing import Any
 
 import numpy as np
 
+from ..exceptions import VtmWarning
+
 #: Whether the compiled kernel runs: Numba is installed (the ``fast`` extra) and its own switch
-#: ``NUMBA_DISABLE_JIT`` is not set to 1. Otherwise the NumPy path runs.
+#: ``NUMBA_DISABLE_JIT`` is not set to 1. Otherwise the NumPy path runs. Set False for the
+#: process if Numba is installed but cannot import or compile here (:func:`fall_back`).
 AVAILABLE = find_spec("numba") is not None and os.environ.get("NUMBA_DISABLE_JIT", "0") == "0"
+
+
+def failures() -> tuple[type[BaseException], ...]:
+    """What a compiled kernel's first call raises when Numba cannot run here.
+
+    Numba's import refusing this NumPy or Python (ImportError), or its compiler failing
+    (``NumbaError``). A kernel's own errors at run time are none of these.
+    """
+    try:
+        from numba.core.errors import NumbaError
+    except ImportError:
+        return (ImportError,)
+    return (ImportError, NumbaError)
+
+
+def fall_back(exc: BaseException) -> None:
+    """The compiled kernels cannot run here: the NumPy path from now on, said once.
+
+    Both kernels' switches go off (this module's and
+    :data:`vtm_pin.physics.chain_dynamics.AVAILABLE`); the results are the same, slower.
+    """
+    global AVAILABLE
+    from . import chain_dynamics
+
+    if AVAILABLE or chain_dynamics.AVAILABLE:
+        warnings.warn(
+            f"the fast extra's compiled kernels cannot run here ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else ''}); the NumPy path runs instead "
+            "(the same results, slower)",
+            VtmWarning,
+            stacklevel=3,
+        )
+    AVAILABLE = chain_dynamics.AVAILABLE = False
 
 
 def body_motions(

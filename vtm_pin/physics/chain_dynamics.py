@@ -29,7 +29,9 @@ where a subtree's spatial inertia is the plain sum of its bodies':
 
 Exact up to round-off: agrees with Pinocchio's RNEA and CRBA to ~1e-15 relative
 (``tests/test_chain_dynamics.py``). Without Numba, or with ``NUMBA_DISABLE_JIT=1``
-(:data:`AVAILABLE` False), the batched engine keeps its NumPy path. The first call of a
+(:data:`AVAILABLE` False), the batched engine keeps its NumPy path; so it does, after one
+warning, if Numba is installed but cannot import or compile here
+(:func:`~vtm_pin.physics.body_kernel.fall_back`). The first call of a
 process compiles the kernel (~9 s) unless Numba's cache beside this file holds it. Numba
 checks only this file for changes: body_kernel's placement and motion helpers are compiled
 into the cached kernel, so after editing them alone, delete ``__pycache__/chain_dynamics*.nb*``

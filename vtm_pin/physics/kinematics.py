@@ -468,7 +468,10 @@ def body_motions(
         (B, len(joints), 6) [m/s^2, rad/s^2].
     """
     if body_kernel.AVAILABLE:
-        return body_kernel.body_motions(chain, qs, vs, joints, gravity)
+        try:
+            return body_kernel.body_motions(chain, qs, vs, joints, gravity)
+        except body_kernel.failures() as exc:  # Numba cannot run here: NumPy from now on
+            body_kernel.fall_back(exc)
     return numpy_body_motions(chain, qs, vs, joints, gravity)
 
 
