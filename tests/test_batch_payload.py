@@ -85,7 +85,9 @@ def test_lanes_with_their_own_inertias_have_their_own_models_dynamics(
     models = []
     for r in range(B):
         if r % 6 == 0:
-            models.append(base)  # the batch's own model: no extra cost, ABA when unlocked
+            models.append(
+                base
+            )  # the batch's own model: no extra cost (ABA when unlocked, NumPy path)
         elif r % 6 == 5:
             model = pin.Model(base)
             j = int(rng.integers(1, base.njoints))

@@ -232,11 +232,12 @@ class _Dynamics:
     dI) takes the columns path, locks or not (ABA cannot take a lane's own inertias); a lane
     whose model is the pool's costs nothing more.
 
-    **Compiled.** With Numba (the ``fast`` extra) and a model the NumPy chain computes, the
-    states with locks or with their own inertias go instead to one compiled pass
+    **Compiled.** With Numba (the ``fast`` extra) and a model the NumPy chain computes, every
+    state goes instead to one compiled pass, locks or not
     (:func:`~vtm_pin.physics.chain_dynamics.locked_dynamics`: M, b and the solve state by
-    state, each lane with its own bodies' parameters), ~2.4 us a UR10 state against ~7 (the
-    model's own) and ~11 us (a payload's) by the RNEA columns; ABA keeps the states without.
+    state, each lane with its own bodies' parameters), ~2.2 us a UR10 state against ~7 (the
+    model's own) and ~11 us (a payload's) by the RNEA columns, and ~2 us by ABA (for a state
+    without locks; one call for all, no split of the states between two algorithms).
 
     Args:
         model: The full model (armature included): the pool's.
@@ -316,10 +317,16 @@ class _Dynamics:
             tau: Applied torques, shape (B, n), 0 at locked joints.
             locked: Lock masks, shape (B, n).
             lanes: Each state's lane (for its inertias); None: the pool's model for all.
+
+        With :attr:`compiled`, every state goes to the kernel, with locks or not: one call,
+        no split of the states between it and ABA (~2.2 against ~2 us a state, and a
+        Pinocchio call, the split's gathers and scatters saved).
         """
+        own = lanes is not None and bool(self.joints)  # some lane has its own inertias
+        if self.compiled:
+            return self._locked(q, v, tau, locked, lanes if own else None)
         a = np.zeros_like(q)
         lam = np.zeros_like(q)
-        own = lanes is not None and bool(self.joints)  # some lane has its own inertias
         loaded = self.loaded[lanes] if own else np.zeros(len(q), dtype=bool)
         held = locked.any(axis=1) | loaded
         rows = np.flatnonzero(~held)
