@@ -265,9 +265,9 @@ class _Dynamics:
         #: Whether the states with locks go to the compiled kernel; the bodies' dynamic
         #: parameters it reads, shape (P, njoints, 10): the pool model's, then one row per
         #: lane if their inertias differ (lane r's is row r + 1).
-        if chain_dynamics.AVAILABLE and self.chain is None:
+        if chain_dynamics.runs() and self.chain is None:
             self.chain = joint_chain(model)
-        self.compiled = chain_dynamics.AVAILABLE and self.chain is not None
+        self.compiled = chain_dynamics.runs() and self.chain is not None
         some = [model, *(models if models is not None and self.joints else ())]
         self.parameters = np.array(
             [[inertia.toDynamicParameters() for inertia in m.inertias] for m in some]

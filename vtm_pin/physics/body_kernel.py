@@ -46,13 +46,11 @@ def failures() -> tuple[type[BaseException], ...]:
 def fall_back(exc: BaseException) -> None:
     """The compiled kernels cannot run here: the NumPy path from now on, said once.
 
-    Both kernels' switches go off (this module's and
-    :data:`vtm_pin.physics.chain_dynamics.AVAILABLE`); the results are the same, slower.
+    :data:`AVAILABLE` goes off, and with it :func:`vtm_pin.physics.chain_dynamics.runs`; the
+    results are the same, slower.
     """
     global AVAILABLE
-    from . import chain_dynamics
-
-    if AVAILABLE or chain_dynamics.AVAILABLE:
+    if AVAILABLE:
         warnings.warn(
             f"the fast extra's compiled kernels cannot run here ({type(exc).__name__}: "
             f"{str(exc).splitlines()[0] if str(exc) else ''}); the NumPy path runs instead "
@@ -60,7 +58,7 @@ def fall_back(exc: BaseException) -> None:
             VtmWarning,
             stacklevel=3,
         )
-    AVAILABLE = chain_dynamics.AVAILABLE = False
+    AVAILABLE = False
 
 
 def body_motions(

@@ -47,8 +47,16 @@ import numpy as np
 
 from . import body_kernel
 
-#: Whether the compiled kernel runs (as :data:`vtm_pin.physics.body_kernel.AVAILABLE`).
+#: Whether the compiled kernel may run (as :data:`vtm_pin.physics.body_kernel.AVAILABLE`).
 AVAILABLE = body_kernel.AVAILABLE
+
+
+def runs() -> bool:
+    """Whether the kernel runs: :data:`AVAILABLE`, and Numba has not failed here.
+
+    (:func:`~vtm_pin.physics.body_kernel.fall_back` switches both kernels off for the process.)
+    """
+    return AVAILABLE and body_kernel.AVAILABLE
 
 
 def locked_dynamics(
