@@ -262,7 +262,7 @@ class _Dynamics:
         self.chain: JointChain | None = None
         if models is not None:
             self._inertias(model, models)
-        #: Whether the states with locks go to the compiled kernel; the bodies' dynamic
+        #: Whether the states go to the compiled kernel; the bodies' dynamic
         #: parameters it reads, shape (P, njoints, 10): the pool model's, then one row per
         #: lane if their inertias differ (lane r's is row r + 1).
         if chain_dynamics.runs() and self.chain is None:
@@ -349,7 +349,8 @@ class _Dynamics:
         """:meth:`accelerations` of states with locks, from M's free columns and b by RNEA.
 
         States of lanes with their own inertias (``lanes``) get their terms added to both.
-        With :attr:`compiled`, one kernel call instead.
+        With :attr:`compiled`, one kernel call instead (for any states, locks or not); should
+        Numba fail here, the RNEA columns from then on.
         """
         if self.compiled:
             which = np.zeros(len(q), dtype=np.int64) if lanes is None else lanes + 1
