@@ -60,6 +60,9 @@ def main() -> None:
     parser.add_argument("--cases", type=int, default=700, help="cases a process runs [-]")
     parser.add_argument("--pairs", type=int, default=8, help="interleaved pairs [-]")
     args = parser.parse_args()
+    for checkout in (args.new, args.old):
+        if not (checkout / "vtm_pin" / "__init__.py").is_file():
+            parser.error(f"'{checkout}' is not a vtm_pin checkout (no vtm_pin/__init__.py)")
     new, old = [], []
     print(f"{args.study}, {args.cases} cases a process; build + simulate + report [ms a case]")
     print(f"{'pair':>4} {'new':>7} {'old':>7} {'ratio':>6}")
