@@ -27,10 +27,12 @@ import pinocchio as pin
 import pytest
 import yaml
 from conftest import SCENARIOS
+from hypothesis import given
+from hypothesis import strategies as st
 
 import vtm_pin as vp
 from vtm_pin.outputs.figures import stop_figures
-from vtm_pin.outputs.flags import arm_length, gravity_loads
+from vtm_pin.outputs.flags import LOAD_SAMPLES, arm_length, gravity_loads, load_rows
 from vtm_pin.outputs.stopping import compute_stopping_report
 from vtm_pin.physics.arm_points import sample_arm_points
 from vtm_pin.physics.brakes import BrakeEventKind, BrakeMode
@@ -317,3 +319,18 @@ def test_the_flags_model_figures_equal_pinocchios_own(case):
     tool = model.frames[model.getFrameId(robot.tool_frame)]
     length = sum(float(np.linalg.norm(m.translation)) for m in list(model.jointPlacements)[1:])
     assert arm_length(robot) == length + float(np.linalg.norm(tool.placement.translation))
+
+
+@given(count=st.integers(1, 5000))
+def test_the_load_checks_cover_the_stop_evenly_from_signal_to_end(count):
+    """The states the brakes are checked at: the first and the last, LOAD_SAMPLES of them (all
+    if fewer), in order, gaps of at most one even gap rounded up; the kept array is shared,
+    so it cannot be written."""
+    rows = load_rows(count)
+    assert rows[0] == 0 and rows[-1] == count - 1
+    assert len(rows) == min(count, LOAD_SAMPLES)
+    assert np.all(np.diff(rows) >= 1)
+    if count > 1:
+        assert np.max(np.diff(rows)) <= math.ceil((count - 1) / (LOAD_SAMPLES - 1)) + 1
+    with pytest.raises(ValueError):
+        rows[0] = 1

@@ -131,6 +131,10 @@ class _Hybrid:
         for i in joints:
             if i in self.locked:
                 raise SimulationError(f"Joint '{names[i]}' is locked twice (again at t = {t} s)")
+        pure = not (frames or self.frames) and len(set(joints)) == len(joints)
+        if pure and self.rule_name == "kkt" and at_rest(self.v, self.locked, joints):
+            self._lock_at_rest(t, joints, kind)
+            return
         frames = [f.latch(self.robot.model, self.data, self.q) for f in frames]
         if (frames or self.frames) and self.rule_name == "naive":
             raise SimulationError("The naive rule is defined for joint locks only")
@@ -140,10 +144,7 @@ class _Hybrid:
             *(self._labels[i] for i in joints),
             *(RowLabel(RowKind.FRAME, f.name, a) for f in frames for a in f.axes),
         ]
-        pure = not (frames or self.frames) and len(set(joints)) == len(joints)
-        if pure and self.rule_name == "kkt" and at_rest(self.v, self.locked, joints):
-            result = joint_lock_at_rest(self.momentum(), self.v, self.locked, joints)
-        elif pure and self.rule_name == "kkt" and self.reduced:
+        if pure and self.rule_name == "kkt" and self.reduced:
             result = self.joint_lock(joints)
         elif pure and self.rule_name == "kkt":
             M = compute_M(self.robot.model, self.data, self.q)
@@ -167,6 +168,33 @@ class _Hybrid:
         self.frames = self.frames + frames
         self.v = result.v_plus.copy()
         self.v[self.locked] = 0.0
+
+    def _lock_at_rest(self, t: float, joints: Sequence[int], kind: LockKind) -> None:
+        """:meth:`lock` of distinct joints whose rates, and the locked ones', are exactly 0.
+
+        The kkt rule's jump is then the identity (:func:`joint_lock_at_rest`): no
+        constraint is stacked, no M is formed; a brake sticking at rest takes this path,
+        six times a study case.
+        """
+        before = self.locked
+        result = joint_lock_at_rest(self.momentum(), self.v, before, joints)
+        labels = self._labels
+        names = self.robot.joints
+        self.events.append(
+            EventRecord(
+                t=t,
+                lock=tuple([names[i] for i in joints]),
+                locked_before=tuple([names[i] for i in before]),
+                q=self.q.copy(),
+                v_minus=self.v.copy(),
+                transition=result,
+                kind=kind,
+                rows=tuple([labels[i] for i in (*before, *joints)]),
+            )
+        )
+        self.locked = [*before, *joints]
+        self.v = result.v_plus.copy()
+        self.v[self.locked] = 0.0  # -0.0 as 0.0, as the general path
 
     def momentum(self) -> np.ndarray:
         """M v [N m s] by RNEA (neither M nor a solve).

@@ -33,6 +33,7 @@ Flags are a case's record, never a failure: the figures stay, with the flag besi
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -143,8 +144,7 @@ def holding_flags(
     after = np.flatnonzero(result.t >= report.signal_time)
     if after.size == 0:
         return []
-    rows = after[np.unique(np.linspace(0, after.size - 1, LOAD_SAMPLES).round().astype(int))]
-    loads = gravity_loads(robot, result.q[rows])
+    loads = gravity_loads(robot, result.q[after[load_rows(after.size)]])
     out = []
     for kind, torques, what, consequence in (
         (
@@ -168,6 +168,18 @@ def holding_flags(
     return out
 
 
+@functools.lru_cache(maxsize=256)
+def load_rows(count: int) -> np.ndarray:
+    """Which of ``count`` states the loads are checked at (indices, read-only).
+
+    :data:`LOAD_SAMPLES` evenly spaced, the first and the last included (all of them if
+    fewer), in order; kept per count, as a stop's sample counts repeat across a study.
+    """
+    rows = np.unique(np.linspace(0, count - 1, LOAD_SAMPLES).round().astype(int))
+    rows.flags.writeable = False
+    return rows
+
+
 def _load_flag(
     robot: Robot,
     report: StoppingReport,
@@ -179,11 +191,11 @@ def _load_flag(
 ) -> Flag | None:
     """A flag if some joint's brake ``torques`` are below its gravity ``loads`` [N m]."""
     margins = torques - loads
-    slack = SLACK * max(1.0, float(np.max(loads)))
-    worst = np.min(np.where(np.isnan(margins), math.inf, margins), axis=0)
-    weak = [i for i in range(robot.nv) if worst[i] < -slack]
-    if not weak:
+    slack = SLACK * max(1.0, float(loads.max()))
+    worst = np.fmin.reduce(margins, axis=0, initial=math.inf)  # NaN (no brake) ignored
+    if not worst.min() < -slack:
         return None
+    weak = [i for i in range(robot.nv) if worst[i] < -slack]
     j = min(weak, key=lambda i: worst[i])
     names = tuple(robot.joints[i] for i in weak)
     when = "at the signal" if margins[0, j] < -slack else "during the stop"
@@ -216,8 +228,7 @@ def drive_flag(robot: Robot, result: SimulationResult, report: StoppingReport) -
     hold = np.flatnonzero(result.t >= stop.t + stop.ramp_time)
     if hold.size == 0:
         hold = np.array([result.t.size - 1])
-    rows = hold[np.unique(np.linspace(0, hold.size - 1, LOAD_SAMPLES).round().astype(int))]
-    loads = gravity_loads(robot, result.q[rows])
+    loads = gravity_loads(robot, result.q[hold[load_rows(hold.size)]])
     limit = np.asarray(stop.torque_limit, dtype=float)
     margins = limit - loads
     slack = SLACK * max(1.0, float(np.max(loads)))
