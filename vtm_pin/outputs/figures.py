@@ -143,7 +143,7 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     """
     robot = scenario.robot
     state = scenario.test_state
-    angles = [abs(j.stop_angle) for j in report.joints]
+    angles = [abs(float(a)) for a in report.stop_angles]
     tested = (
         state.joint_index if state is not None else max(range(len(angles)), key=angles.__getitem__)
     )
@@ -174,7 +174,7 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     separation = scenario.separation.figures(report.all_stopped_time, v_r, arm.distance)
     metrics: dict[str, float | None] = {
         "robot_stop_time": report.all_stopped_time,
-        "test_stop_time": report.joints[tested].stop_time,
+        "test_stop_time": float(report.stop_times[tested]),
         "stop_angle": angles[tested],
         "tcp_max_displacement": reach,
         "arm_max_displacement": arm.distance,
@@ -193,9 +193,9 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
         "test_speed": abs(state.speed) if state is not None else None,
         "test_reach": state.reach if state is not None else None,
     }
-    for joint, angle in zip(report.joints, angles, strict=True):
-        metrics[f"stop_time.{joint.joint}"] = joint.stop_time
-        metrics[f"stop_angle.{joint.joint}"] = angle
+    for name, stop_time, angle in zip(report.names, report.stop_times, angles, strict=True):
+        metrics[f"stop_time.{name}"] = float(stop_time)
+        metrics[f"stop_angle.{name}"] = angle
     clean = {k: (v if v is not None and math.isfinite(v) else None) for k, v in metrics.items()}
     flags = case_flags(
         robot,
