@@ -31,7 +31,13 @@ from vtm_pin.study.runner import CaseTask, run_cases
 study = load_study(find_study(sys.argv[1]))
 tasks = [CaseTask(study.base, str(study.scenario.parent), str(study.scenario), "ab", c)
          for c in study.cases()[: int(sys.argv[2])]]
-run_cases(tasks[:50]); gc.collect(); gc.freeze()
+run_cases(tasks[:50]); gc.collect()
+try:  # as the checkout's pool workers set their collector
+    from vtm_pin.study.executors import tune_collector
+except ImportError:  # a checkout from before it
+    gc.freeze()
+else:
+    tune_collector()
 begin = time.perf_counter()
 run_cases(tasks)
 print(1e3 * (time.perf_counter() - begin) / len(tasks))

@@ -32,7 +32,6 @@ their own) and the intervals handed to the loop.
 from __future__ import annotations
 
 import argparse
-import gc
 import math
 import statistics
 import subprocess
@@ -49,6 +48,7 @@ from vtm_pin.core.results import SimulationResult
 from vtm_pin.physics.robot import RobotCache
 from vtm_pin.scene.scenario import build_scenario
 from vtm_pin.study.cases import find_study, load_study, resolve_case
+from vtm_pin.study.executors import tune_collector
 from vtm_pin.study.runner import BATCH_CASES, CaseTask, run_cases
 
 #: The per-case timing split of a study's records.
@@ -80,7 +80,7 @@ def per_state(model: pin.Model, batch: int) -> dict[str, float]:
 
 def case_times(tasks: list[CaseTask]) -> dict[str, float]:
     """Mean build, simulate and report time of the cases [ms] (a worker's batch, warmed)."""
-    gc.freeze()  # as a pool worker does at its start (vtm_pin.study.executors._init_worker)
+    tune_collector()  # as a pool worker does at its start (vtm_pin.study.executors._init_worker)
     run_cases(tasks[:50])  # warm: the robots, reaches and schema memo a worker keeps
     ok = [r for r in run_cases(tasks) if r.get("status") == "ok"]
     return {p: 1e3 * statistics.fmean(r["timing"][p] for r in ok) for p in PARTS}

@@ -375,8 +375,11 @@ def test_a_pool_that_finishes_shuts_down_cleanly() -> None:
     assert sorted(r["case"] for r in records) == [1, 2, 3, 4, 5, 6]
     workers = {r["pid"] for r in records}
     assert os.getpid() not in workers and not survivors(workers)
-    # each worker froze what it imported: the garbage collector's full passes skip it
+    # each worker froze what it imported: the garbage collector's full passes skip it; and
+    # set the rarer passes of a study worker
     assert all(r["frozen"] > 10_000 for r in records)
+    assert all(r["thresholds"] == executors.WORKER_GC_THRESHOLDS for r in records)
+    assert gc.get_threshold() != executors.WORKER_GC_THRESHOLDS  # the driver's are its own
 
 
 def test_closing_the_records_early_terminates_the_workers() -> None:
@@ -392,8 +395,11 @@ def test_closing_the_records_early_terminates_the_workers() -> None:
 
 
 def _records(piece: list[int]) -> list[dict]:
-    frozen = gc.get_freeze_count()
-    return [{"case": case, "pid": os.getpid(), "frozen": frozen} for case in piece]
+    frozen, thresholds = gc.get_freeze_count(), gc.get_threshold()
+    return [
+        {"case": case, "pid": os.getpid(), "frozen": frozen, "thresholds": thresholds}
+        for case in piece
+    ]
 
 
 def _sleep(piece: list[float]) -> list[dict]:
