@@ -501,6 +501,28 @@ EXAMPLE_LOCK_AT_T0 = EStop(
     ),
     0.5,
 )
+#: Found by the drawn e-stops (which draws Hypothesis makes depends on the modules loaded):
+#: wrist 1's brake (10,000 N m joint side) ramps in 1 us, so the holding torque of the stuck
+#: wrist 3 rises ~1e10 N m/s, and the slip located within DOP853's event tolerance (1e-14 s)
+#: sees it 1.0001 N m against a static 1 N m. Kept within the tolerance of
+#: check_holds_within_static, which counts the fastest ramp.
+EXAMPLE_STEEP_RAMP_SLIP = EStop(
+    "ur5",
+    np.zeros(6),
+    np.zeros(6),
+    Stop(0.0),
+    tuple(
+        Brake(
+            joint,
+            delay=0.078125 if joint == "wrist_1_joint" else 0.0,
+            friction=Viscous(sliding_torque=99.00990099009901, viscous_velocity=1.0, ramp=1e-6)
+            if joint == "wrist_1_joint"
+            else Coulomb(0.009900990099009901),
+        )
+        for joint in UR_JOINTS
+    ),
+    0.5,
+)
 #: Before the fix: joint 3's brake ramps (4 ms), so it cannot hold at engagement; it
 #: started sliding, and the joints ran away (46 rad/s) on brakes 1-5x the gravity torques.
 EXAMPLE_STRONG_RAMPED_BRAKES = _planar(
@@ -691,14 +713,29 @@ def check_holds_within_static(case: EStop) -> None:
     """A stuck joint's holding torque stays within its static torque at every sample.
 
     Tolerance: the stick/slip decision's round-off (vtm_pin.physics.brakes.ROUNDOFF of the largest
-    holding torque) plus 1e-6 of it for the slip event's location on the step (1e-14 s).
+    holding torque) plus 1e-6 of it for the slip event's location on the step; and what a
+    holding torque can rise within that location's resolution (the integrator's event_tol,
+    1e-14 s) while a brake's torque ramps up, with 10x for the coupling through the mass
+    matrix (the steepest measured: 1.0 of the ramp's rate, EXAMPLE_STEEP_RAMP_SLIP).
     """
     result = case.run()
     report = stopping_report(case, result)
     scale = max(1.0, float(np.nanmax(np.abs(result.holding), initial=0.0)))
+    r = case.arm
+    rate = max(  # the fastest ramp of a brake's torque, joint side [N m/s]
+        (
+            b.friction.breakaway_torque
+            * float(r.gear_ratio[r.joint_index(b.joint)])
+            / b.friction.ramp
+            for b in case.brakes
+            if not b.ideal and b.friction.ramp > 0.0
+        ),
+        default=0.0,
+    )
+    tol = 1e-6 * scale + 10.0 * INTEGRATOR.event_tol * rate
     for joint in report.joints:
         if math.isfinite(joint.holding_margin):
-            assert joint.holding_margin >= -1e-6 * scale, (joint, _events(result))
+            assert joint.holding_margin >= -tol, (joint, tol, _events(result))
 
 
 def check_report(case: EStop) -> None:
@@ -787,7 +824,7 @@ PROPERTIES = {
     "stuck_joints_hold_within_static": (
         check_holds_within_static,
         estops().filter(lambda case: case.stop.category == 0),
-        [],
+        [EXAMPLE_STEEP_RAMP_SLIP],
     ),
     "report_has_no_nan": (
         check_report,
