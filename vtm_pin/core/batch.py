@@ -479,11 +479,18 @@ class _Lanes:
 class _Run:
     """One run's hybrid loop and the interval it is waiting for."""
 
-    def __init__(self, index: int, problem: Problem, integrator: DOP853, transition: str) -> None:
+    def __init__(
+        self,
+        index: int,
+        problem: Problem,
+        integrator: DOP853,
+        transition: str,
+        holding: bool = True,
+    ) -> None:
         self.index = index
         self.transition = transition
         self.loop: Generator[SegmentRequest, Reply, SimulationResult] = hybrid_run(
-            problem, integrator, transition=transition, reduced_models=False
+            problem, integrator, transition=transition, reduced_models=False, holding=holding
         )
         self.request: SegmentRequest | None = None
         self.outcome: SimulationResult | VtmError | None = None
@@ -530,6 +537,8 @@ class BatchEngine:
         threads: Threads of Pinocchio's parallel algorithms.
         models: Each run's model, in the order of the runs :meth:`run` is given, if they
             differ from ``model`` in their bodies' inertias (:func:`batch_key`).
+        holding: False: the output samples get no holding torques (NaN, no right-hand side
+            evaluated for them; see :func:`run_many`).
     """
 
     def __init__(
@@ -538,9 +547,11 @@ class BatchEngine:
         integrator: DOP853,
         threads: int = 1,
         models: Sequence[pin.Model] | None = None,
+        holding: bool = True,
     ) -> None:
         self.dynamics = _Dynamics(model, threads, models)
         self.integrator = integrator
+        self.holding = holding
         #: Called with each run as soon as it has its outcome (see :func:`run_many`).
         self.finished: Callable[[_Run], None] | None = None
         self.n = model.nv
@@ -1041,7 +1052,10 @@ class BatchEngine:
         when = np.array(times)
         x = (when - lanes.t[sub][owner]) / part.h[owner]
         y = dp.dense_value(F[owner], x, lanes.y[sub][owner], _LANES)
-        _, lam = self.rhs(lanes, sub[owner], when, y)
+        if self.holding:
+            _, lam = self.rhs(lanes, sub[owner], when, y)
+        else:  # no right-hand side for the samples: nobody reads their holding torques
+            lam = np.full((len(when), self.n), np.nan)
         split = np.flatnonzero(np.diff(owner)) + 1
         starts = np.concatenate([[0], split]).astype(int)
         for t_part, y_part, l_part, first in zip(
@@ -1237,7 +1251,7 @@ class BatchEngine:
         """
         begin = time.perf_counter()
         t, y, hold = np.concatenate(run.ts), np.concatenate(run.ys), np.concatenate(run.holds)
-        hold[:, ~lanes.locked[b]] = np.nan
+        hold[:, ~lanes.locked[b] if self.holding else slice(None)] = np.nan
         run.ts, run.ys, run.holds = [], [], []
         self.seconds["lanes"] += time.perf_counter() - begin
         return t, y, hold
@@ -1434,6 +1448,7 @@ def run_many(
     threads: int = 1,
     on_done: OnDone | None = None,
     min_lanes: int = 1,
+    holding: bool = True,
 ) -> BatchOutcome:
     """Run many problems; the batched engine takes those it can (see :func:`fallback_reason`).
 
@@ -1457,6 +1472,10 @@ def run_many(
             it. The time spent in ``on_done`` itself is not the batch's. An error it raises
             ends the call.
         min_lanes: Fewest runs a batch is given (a study's runner uses :data:`MIN_LANES`).
+        holding: False: the results' holding torques are not computed (NaN at every sample)
+            for a caller that reads none (a study's records: ~70 of a UR10 case's ~290
+            right-hand sides are its output samples'); the runs' motions, brake decisions
+            and events do not change.
 
     Raises:
         SimulationError: An unknown engine.
@@ -1473,7 +1492,7 @@ def run_many(
     for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
         if reason is None:
             continue
-        results[index] = _simulate_one(problem, integrators[index], transition)
+        results[index] = _simulate_one(problem, integrators[index], transition, holding)
         if on_done is not None:
             on_done(index, results[index], reason, None)  # type: ignore[arg-type]
     seconds = dict.fromkeys(PARTS, 0.0)
@@ -1483,12 +1502,12 @@ def run_many(
     for (_, integrator), indices in groups.items():
         started = time.perf_counter()
         runs = [
-            _Run(i, problems[i], integrator, transition)  # type: ignore[arg-type]
+            _Run(i, problems[i], integrator, transition, holding)  # type: ignore[arg-type]
             for i in indices
         ]
         robots = [problems[i].robot for i in indices]
         models = [robot.model for robot in robots]
-        batch = BatchEngine(_base_model(robots), integrator, threads, models)  # type: ignore[arg-type]
+        batch = BatchEngine(_base_model(robots), integrator, threads, models, holding)  # type: ignore[arg-type]
         clock = _Clock(batch, started)
         _run_batch(batch, runs, problems, reasons, on_done, clock)
         parts = clock.parts_now()
@@ -1588,7 +1607,9 @@ def _run_batch(
         for run in runs:
             if run.outcome is None:
                 transition = run.transition
-                run.outcome = _simulate_one(problems[run.index], batch.integrator, transition)
+                run.outcome = _simulate_one(
+                    problems[run.index], batch.integrator, transition, batch.holding
+                )
                 reasons[run.index] = f"the batched engine failed ({type(exc).__name__})"
                 if on_done is not None:
                     on_done(run.index, run.outcome, reasons[run.index], None)
@@ -1636,13 +1657,13 @@ def _report(on_done: OnDone, clock: _Clock, run: _Run) -> None:
 
 
 def _simulate_one(
-    problem: Problem, integrator: object, transition: str
+    problem: Problem, integrator: object, transition: str, holding: bool = True
 ) -> SimulationResult | VtmError:
     """One run on the scalar engine; its result or the error that ended it."""
     from .simulation import simulate
 
     try:
-        return simulate(problem, integrator, transition=transition)  # type: ignore[arg-type]
+        return simulate(problem, integrator, transition=transition, holding=holding)  # type: ignore[arg-type]
     except Exception as exc:
         return _as_vtm_error(exc)
 

@@ -406,6 +406,7 @@ def simulate(
     *,
     transition: str = "kkt",
     progress: Callable[[float], None] | None = None,
+    holding: bool = True,
 ) -> SimulationResult:
     """Simulate a problem: prescribed locks, and brakes after a stop signal.
 
@@ -423,6 +424,9 @@ def simulate(
         progress: Called with the simulated time t [s] at every right-hand-side evaluation
             and at the end of every segment, for progress display; it must not change
             anything (the results do not depend on it).
+        holding: False: the locks' holding torques at the samples are not computed (NaN in
+            the result's ``holding``), for a caller that reads none (a study's records);
+            the brakes' decisions compute their own and do not change.
 
     Returns:
         The sampled motion and event records.
@@ -430,7 +434,7 @@ def simulate(
     Raises:
         SimulationError: An unknown transition rule, or the state became non-finite.
     """
-    run = hybrid_run(problem, integrator, transition=transition, progress=progress)
+    run = hybrid_run(problem, integrator, transition=transition, progress=progress, holding=holding)
     request = next(run)
     while True:
         try:
@@ -447,6 +451,7 @@ def hybrid_run(
     transition: str = "kkt",
     progress: Callable[[float], None] | None = None,
     reduced_models: bool = True,
+    holding: bool = True,
 ) -> Generator[SegmentRequest, Reply, SimulationResult]:
     """The hybrid loop of :func:`simulate` as a generator of integration requests.
 
@@ -458,7 +463,8 @@ def hybrid_run(
     replaces it with the run's share of its batch). Without ``reduced_models`` the loop's
     own dynamics (brake decisions, holding torques, joint-lock jumps by the dense kkt rule)
     use the full model only, for an integrator that does not evaluate the phases' reduced
-    models.
+    models. Without ``holding`` the samples' holding torques are left NaN (see
+    :func:`simulate`).
 
     Raises:
         SimulationError: As :func:`simulate`.
@@ -486,7 +492,7 @@ def hybrid_run(
         h.q, h.v = project_initial_state(robot, h.q, h.v, h.frames)
         h.phase = h.new_phase()
     queue = _time_events(problem.events, h.brakes, stop, duration)
-    trace = _Trace(n, h.extras.size)
+    trace = _Trace(n, h.extras.size, holding=holding and bool(h.brakes))
     if queue and queue[0].t <= 0.0:
         trace.add_state(0.0, h)  # the state before the events at t = 0
     counts = _Counts()
@@ -551,7 +557,7 @@ def _take(
     counts.rhs_evals += segment.rhs_evals
     counts.steps += segment.steps
     _check_energy(h, phase, segment.y, segment.t, integrator)
-    h.q, h.v, h.extras = trace.add_segment(phase, segment, h, bool(h.brakes))
+    h.q, h.v, h.extras = trace.add_segment(phase, segment, h)
     t = float(segment.t[-1])
     if progress is not None:
         progress(t)
@@ -669,9 +675,11 @@ class _Trace:
     constraint drift is kept for the blocks with frame constraints only (NaN elsewhere).
     """
 
-    def __init__(self, n: int, n_extras: int) -> None:
+    def __init__(self, n: int, n_extras: int, holding: bool = True) -> None:
         self.n = n
         self.n_extras = n_extras
+        #: Whether the locks' holding torques are kept at the samples (NaN if not).
+        self.holding = holding
         self.blocks: dict[str, list[np.ndarray]] = {
             key: [] for key in ("t", "q", "v", "extras", "hold")
         }
@@ -716,7 +724,7 @@ class _Trace:
         )
 
     def add_segment(
-        self, phase: Phase, segment: Segment, h: _Hybrid, holding: bool
+        self, phase: Phase, segment: Segment, h: _Hybrid
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Record a segment; returns the full (q, v, extras) at its end."""
         n, k, size = self.n, phase.k, segment.t.size
@@ -727,6 +735,7 @@ class _Trace:
         q[:, topology.free] = segment.y[:, :k]
         v[:, topology.free] = segment.y[:, k : 2 * k]
         hold = np.full((size, n), np.nan)
+        holding = self.holding
         if holding and topology.locked and segment.holding is not None:
             locked = list(topology.locked)
             hold[:, locked] = segment.holding[:, locked]

@@ -303,6 +303,7 @@ def _run_group(
             engine=engine,
             on_done=on_done,
             min_lanes=MIN_LANES,
+            holding=False,  # a record holds no holding torque: not computed at the samples
         )
     except OutputError:
         raise
