@@ -115,7 +115,8 @@ class SimulationResult:
             [J], shape (k,); never decreases.
         brake_impulse: Friction impulse each brake delivered to its joint [N m s], shape (n,).
         holding: Torque each lock exerts to hold its joint [N m], shape (k, n); NaN where the
-            joint is free, and everywhere in runs without brakes (not computed).
+            joint is free, and everywhere in runs without brakes or run with
+            ``holding=False`` (not computed: a study's runs).
         drift: Constraint drift of the active frame constraints per sample, shape (k, 2):
             max |h| [m or rad] and max |J v| [m/s or rad/s]; NaN where none is active.
         events: One record per lock, in time order.
