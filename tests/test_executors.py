@@ -341,7 +341,7 @@ def interrupt_pool(tmp_path: Path, when: str) -> None:
     process, out, tree = start_pool(tmp_path, "batched")
     if when == "first records stored":
         deadline = time.monotonic() + 120.0
-        while not any((out / "cases").glob("*.json")):
+        while not any((out / "cases").glob("*.jsonl")):
             assert process.poll() is None and time.monotonic() < deadline
             time.sleep(0.1)
     process.send_signal(signal.SIGINT)

@@ -21,7 +21,8 @@ from vtm_pin.cli import main
 from vtm_pin.exceptions import StudyError
 from vtm_pin.scene.scenario import SCENARIOS_DIR
 from vtm_pin.study.cases import NAMED_AXES, find_study, load_study, resolve_case
-from vtm_pin.study.runner import CASES_FOLDER, run_study
+from vtm_pin.study.runner import run_study
+from vtm_pin.study.store import count_stored
 
 #: Columns that depend on the machine, not on the physics.
 TIMING = ["wall_time"]
@@ -248,14 +249,13 @@ def test_resume_after_sigkill_equals_a_clean_run(
     # The scalar engine stores case by case (the batched one a batch at a time); the
     # re-run takes the default, batched engine: the two engines' records mix in one table.
     process = subprocess.Popen([*command, "--workers", "1", "--engine", "scalar", "--quiet"])
-    cases = out / CASES_FOLDER
     deadline = time.monotonic() + 120.0
-    while len(list(cases.glob("*.json"))) < 2 and time.monotonic() < deadline:
+    while count_stored(out) < 2 and time.monotonic() < deadline:
         assert process.poll() is None, "the study ended before it could be killed"
         time.sleep(0.02)
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
-    stored = len(list(cases.glob("*.json")))
+    stored = count_stored(out)
     assert 2 <= stored < 8
     assert not (out / "results.parquet").exists()  # nothing but finished cases was written
     rerun = subprocess.run([*command, "--workers", "1", "--json"], capture_output=True, text=True)

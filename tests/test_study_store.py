@@ -26,7 +26,15 @@ from vtm_pin import cli
 from vtm_pin.cli import main
 from vtm_pin.files.staging import _staging_prefix
 from vtm_pin.study.cases import load_study
-from vtm_pin.study.runner import CASES_FOLDER, STATE_FILE, check_record, run_study, seal
+from vtm_pin.study.runner import run_study
+from vtm_pin.study.store import (
+    CASES_FOLDER,
+    RECORDS_SUFFIX,
+    STATE_FILE,
+    check_record,
+    count_stored,
+    seal,
+)
 
 #: Columns that depend on the machine, not on the physics.
 TIMING = ["wall_time"]
@@ -83,11 +91,32 @@ def rerun(path: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> tuple[in
 # -- the case store is checked, not trusted ---------------------------------------------------
 
 
+def stored_lines(out: Path) -> dict[str, tuple[Path, int, dict]]:
+    """Case id -> (its file, its line's index, its record), over the store's files."""
+    found = {}
+    for path in sorted((out / CASES_FOLDER).glob(f"*{RECORDS_SUFFIX}")):
+        for number, line in enumerate(path.read_text().splitlines()):
+            record = json.loads(line)
+            assert record["case"] not in found, f"case {record['case']} stored twice"
+            found[record["case"]] = (path, number, record)
+    return found
+
+
+def replace_line(out: Path, case: str, text: str) -> None:
+    """Put ``text`` (one line) in place of case ``case``'s stored line."""
+    path, number, _ = stored_lines(out)[case]
+    lines = path.read_text().splitlines(keepends=True)
+    lines[number] = text if text.endswith("\n") else text + "\n"
+    path.write_text("".join(lines))
+
+
 def test_a_stored_record_carries_its_case_and_a_checksum(finished: tuple[Path, Path]) -> None:
     path, out = finished
     study = load_study(path)
+    lines = stored_lines(out)
+    assert sorted(lines) == sorted(case.id for case in study.cases())
     for case in study.cases():
-        record = json.loads((out / CASES_FOLDER / f"{case.id}.json").read_text())
+        record = lines[case.id][2]
         assert record["case"] == case.id and len(record["checksum"]) == 64
         assert check_record(record, case, study.fingerprint) is None
         # the same case of another study (its base differs): not this study's record
@@ -96,44 +125,89 @@ def test_a_stored_record_carries_its_case_and_a_checksum(finished: tuple[Path, P
         assert "checksum" in str(check_record(record, case, study.fingerprint))
 
 
-def _copy_over(out: Path, cases: list[str]) -> str:
-    source, target = cases[0], cases[1]
-    (out / CASES_FOLDER / f"{target}.json").write_text(
-        (out / CASES_FOLDER / f"{source}.json").read_text()
-    )
-    return f"holds case {source}"
+def test_cases_finished_together_are_stored_in_one_file(tmp_path: Path) -> None:
+    """A batch's records go into one file a group of finished cases, not one file a case: the
+    small study's three cases, one batch on one worker, give one file of three lines."""
+    from vtm_pin.study.runner import CaseTask, run_cases
+
+    study = load_study(write_study(tmp_path, SMALL))
+    out = tmp_path / "out"
+    (out / CASES_FOLDER).mkdir(parents=True)
+    folder, source = str(study.scenario.parent), str(study.scenario)
+    tasks = [
+        CaseTask(study.base, folder, source, study.scenario.stem, case, study.fingerprint)
+        for case in study.cases()
+    ]
+    records = run_cases(tasks, engine="batched", store=str(out))
+    lines = stored_lines(out)
+    assert sorted(lines) == sorted(r["case"] for r in records)
+    assert len({p for p, _, _ in lines.values()}) == 1
+    assert all(p.name.startswith(f"{records[0]['case']}-") for p, _, _ in lines.values())
+    for record in records:  # the stored record is the one returned, but for the write's time
+        assert record["timing"]["write"] > 0
+        stored = lines[record["case"]][2]["timing"]
+        assert stored == {k: v for k, v in record["timing"].items() if k != "write"}
+
+
+def test_a_sealed_line_is_its_record_and_its_checksum_covers_the_rest() -> None:
+    """The stored line parses back to the record, keys in order (the table's columns follow
+    them); its checksum is the other keys' compact JSON, which a record read back gives again."""
+    import hashlib
+
+    record = {"case": "c1", "values": {"b": 1.5, "a": [1, None]}, "metrics": {"t": 0.1 + 0.2}}
+    line = seal(record)
+    assert line.endswith("\n") and line.count("\n") == 1
+    back = json.loads(line)
+    assert back == record and list(back) == list(record) and list(back["values"]) == ["b", "a"]
+    body = json.dumps({k: v for k, v in back.items() if k != "checksum"}, separators=(",", ":"))
+    assert record["checksum"] == hashlib.sha256(body.encode()).hexdigest()
+    assert seal(back) == line  # read back and sealed again: the same line
+    assert json.loads(seal({})) == {"checksum": hashlib.sha256(b"{}").hexdigest()}
+    with pytest.raises(ValueError):
+        seal({"case": "c1", "metrics": {"t": float("nan")}})
+
+
+def _foreign_case(out: Path, cases: list[str]) -> str:
+    record = stored_lines(out)[cases[0]][2]
+    record["case"] = "c-not-in-the-study"
+    replace_line(out, cases[0], seal(record))  # a whole record, but of no case of this study
+    return "not one of this study's"
 
 
 def _nan_metric(out: Path, cases: list[str]) -> str:
-    path = out / CASES_FOLDER / f"{cases[0]}.json"
-    record = json.loads(path.read_text())
+    record = stored_lines(out)[cases[0]][2]
     record["metrics"]["robot_stop_time"] = float("nan")
-    path.write_text(json.dumps(record))  # json writes NaN: what a hand edit could leave
+    replace_line(out, cases[0], json.dumps(record))  # json writes NaN: what a hand edit could leave
     return "NaN"
 
 
 def _changed_value(out: Path, cases: list[str]) -> str:
-    path = out / CASES_FOLDER / f"{cases[0]}.json"
-    record = json.loads(path.read_text())
+    record = stored_lines(out)[cases[0]][2]
     record["values"]["duration"] = 5.0
-    path.write_text(seal(record))  # even with a fresh checksum, the values are not the case's
+    replace_line(out, cases[0], seal(record))  # a fresh checksum, but not the case's values
     return "axis values"
 
 
 def _wrong_shape(out: Path, cases: list[str]) -> str:
-    (out / CASES_FOLDER / f"{cases[0]}.json").write_text("[1, 2, 3]\n")
+    replace_line(out, cases[0], "[1, 2, 3]")
     return "not a record"
 
 
 def _not_json(out: Path, cases: list[str]) -> str:
-    (out / CASES_FOLDER / f"{cases[0]}.json").write_text('{"case": "x",')
+    replace_line(out, cases[0], '{"case": "x",')
     return "cannot be read"
 
 
+def _not_utf8(out: Path, cases: list[str]) -> str:
+    path = stored_lines(out)[cases[0]][0]
+    path.write_bytes(path.read_bytes() + b"\xff\n")
+    return "not UTF-8"
+
+
 @pytest.mark.parametrize(
-    "damage", [_copy_over, _nan_metric, _changed_value, _wrong_shape, _not_json]
+    "damage", [_foreign_case, _nan_metric, _changed_value, _wrong_shape, _not_json, _not_utf8]
 )
-def test_a_damaged_record_is_computed_again_and_said_so(
+def test_a_damaged_record_is_computed_again_and_said_so_once(
     damage: object,
     finished: tuple[Path, Path],
     clean: tuple[Path, pd.DataFrame],
@@ -151,9 +225,14 @@ def test_a_damaged_record_is_computed_again_and_said_so(
     assert table["case"].is_unique and len(table) == len(cases)
     pd.testing.assert_frame_equal(physics(table), physics(clean[1]))
     study = load_study(path)
-    for case in study.cases():  # every record is whole again
-        record = json.loads((out / CASES_FOLDER / f"{case.id}.json").read_text())
-        assert check_record(record, case, study.fingerprint) is None
+    lines = stored_lines(out)  # every line is a record again, each case's once
+    assert sorted(lines) == sorted(cases) and count_stored(out) == len(cases)
+    for case in study.cases():
+        assert check_record(lines[case.id][2], case, study.fingerprint) is None
+    files = sorted(p.name for p in (out / CASES_FOLDER).iterdir())
+    code, err = rerun(path, out, capsys)  # the damaged line went with its warning
+    assert code == 0 and "vtm-pin: warning" not in err, err
+    assert sorted(p.name for p in (out / CASES_FOLDER).iterdir()) == files  # nothing computed
 
 
 def test_records_without_a_study_file_are_a_changed_study(
@@ -189,14 +268,14 @@ def test_a_full_disk_names_the_file_it_could_not_write(
     capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from vtm_pin.study import runner as study_runner
+    from vtm_pin.study import store as study_store
 
     def full(*args: object, **kwargs: object) -> object:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     path = write_study(tmp_path, SMALL)
     out = tmp_path / "out"
-    monkeypatch.setattr(study_runner, "_create", full)
+    monkeypatch.setattr(study_store, "_create", full)
     code, err = rerun(path, out, capsys)
     line = one_error_line(err)
     assert code == 1 and "No space left on device" in line and str(out) in line
@@ -374,11 +453,11 @@ def test_ctrl_c_at_a_random_time_exits_promptly_and_keeps_finished_cases(
     )
     cases = out / CASES_FOLDER
     deadline = time.monotonic() + 180.0
-    while not list(cases.glob("*.json")) and time.monotonic() < deadline:
+    while not count_stored(out) and time.monotonic() < deadline:
         assert process.poll() is None, "the study ended before the first case was stored"
         time.sleep(0.005)
     time.sleep(random.Random(seed).uniform(0.0, 0.3))  # the rest and the outputs take longer
-    before = {p.name: p.read_bytes() for p in cases.glob("*.json")}
+    before = {p.name: p.read_bytes() for p in cases.glob(f"*{RECORDS_SUFFIX}")}
     signalled = time.monotonic()
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
@@ -388,7 +467,7 @@ def test_ctrl_c_at_a_random_time_exits_promptly_and_keeps_finished_cases(
     for name, data in before.items():
         assert (cases / name).read_bytes() == data
     assert not (out / "results.parquet").exists()
-    stored = len(list(cases.glob("*.json")))
+    stored = count_stored(out)
     again = subprocess.run(
         [*command, "--workers", "1", "--json"], capture_output=True, text=True, timeout=300
     )
@@ -438,28 +517,28 @@ def test_a_record_is_written_whole_through_a_temporary_file_of_its_own(
     overwritten; a failed rename leaves no temporary file."""
     import itertools
 
-    from vtm_pin.study import runner as study_runner
+    from vtm_pin.study import store as study_store
 
     path = tmp_path / "c1.json"
     old = os.umask(0o027)
     try:
-        study_runner._write_atomic(path, '{"a": 1}\n')
+        study_store.write_atomic(path, '{"a": 1}\n')
     finally:
         os.umask(old)
     assert path.read_text() == '{"a": 1}\n'
     assert path.stat().st_mode & 0o777 == 0o640
     assert [p.name for p in tmp_path.iterdir()] == ["c1.json"]
-    monkeypatch.setattr(study_runner, "_TEMPORARY", itertools.count(5))
+    monkeypatch.setattr(study_store, "_TEMPORARY", itertools.count(5))
     leftover = tmp_path / f".c1.json.{os.getpid()}.5"
     leftover.write_text("partial")
-    study_runner._write_atomic(path, '{"a": 2}\n')
+    study_store.write_atomic(path, '{"a": 2}\n')
     assert path.read_text() == '{"a": 2}\n' and leftover.read_text() == "partial"
 
     def broken(*args: object) -> None:
         raise OSError(errno.EIO, os.strerror(errno.EIO))
 
-    monkeypatch.setattr(study_runner.os, "replace", broken)
+    monkeypatch.setattr(study_store.os, "replace", broken)
     with pytest.raises(OSError):
-        study_runner._write_atomic(path, '{"a": 3}\n')
+        study_store.write_atomic(path, '{"a": 3}\n')
     assert sorted(p.name for p in tmp_path.iterdir()) == [leftover.name, "c1.json"]
     assert path.read_text() == '{"a": 2}\n'

@@ -46,7 +46,7 @@ def reference_assumptions(lists: list[list[str]]) -> list[str]:
     if len(templates) > len(shown):
         common.append(
             f"{len(templates) - len(shown)} further per-case statements are in each case's "
-            "record, cases/<case>.json."
+            "record, in cases/*.jsonl."
         )
     return common
 

@@ -63,7 +63,8 @@ from .scene.scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scen
 from .shipped import KINDS, init_files, shipped_names
 from .study.cases import STUDIES_DIR, Study, find_study, load_study
 from .study.program_report import format_program, run_program
-from .study.runner import CASES_FOLDER, format_study, run_study
+from .study.runner import format_study, run_study
+from .study.store import count_stored
 from .study.sweep import DEFAULT_EVERY, DEFAULT_TOLERANCE, SEARCH_FIGURES, load_program_study
 
 #: Exit codes: success, a user error (bad scenario, robot or option value), bad usage of the
@@ -667,7 +668,7 @@ def _study(args: argparse.Namespace) -> int:
             )
     except KeyboardInterrupt:
         forget_interrupt()
-        stored = len(list((Path(out) / CASES_FOLDER).glob("*.json")))
+        stored = count_stored(Path(out))
         print(
             f"vtm-pin: interrupted; {stored} finished cases are stored in {out}; run the same "
             "command again to continue",

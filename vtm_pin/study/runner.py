@@ -3,12 +3,13 @@
 Every case is a simulation of the case's scenario and its stopping report, by the batched
 engine (:mod:`vtm_pin.core.batch`: a worker advances a batch of cases together; cases it cannot
 take run on the scalar engine) or the scalar one. A case that fails is recorded with its
-one-line message and the study goes on. Each finished case is written at
-once, atomically, to ``DIR/cases/<id>.json``; ``DIR/study.json`` holds the study's
-fingerprint. Run again after an interruption (Ctrl-C, or the process killed outright), the
-same command computes only the cases missing there; a changed study is refused rather than
-mixed with old results. The results table, its summary and the report are written once, by
-the driver process only, when every case is done (:func:`run_study`).
+one-line message and the study goes on. Each finished case is written at once, atomically,
+with the cases finished together, into ``DIR/cases`` (:mod:`vtm_pin.study.store`);
+``DIR/study.json`` holds the study's fingerprint. Run again after an interruption (Ctrl-C, or
+the process killed outright), the same command computes only the cases missing there; a
+changed study is refused rather than mixed with old results. The results table, its summary
+and the report are written once, by the driver process only, when every case is done
+(:func:`run_study`).
 
 Executors: one worker runs the cases in the driver process; more use a process pool, and a
 scheduler address sends them to a Dask cluster (:mod:`vtm_pin.study.executors`). A worker loads each
@@ -20,8 +21,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import hashlib
-import itertools
 import json
 import math
 import os
@@ -41,8 +40,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.batch import ENGINES, PARTS
-from ..exceptions import OutputError, StudyError, VtmError, VtmWarning, excerpt
-from ..files.inputs import read_text
+from ..exceptions import OutputError, StudyError, VtmError, VtmWarning
 from ..files.staging import output_lock, write_staged
 from ..outputs.figures import DEFINITIONS as FIGURE_DEFINITIONS
 from ..outputs.figures import METRICS
@@ -50,13 +48,12 @@ from ..outputs.flags import KINDS as FLAG_KINDS
 from ..physics.robot import RobotCache
 from .cases import Case, Study
 from .executors import close, connect, dask_workers, on_dask, on_pool
+from .store import CaseStore, seal, write_lines
 
 if TYPE_CHECKING:
     import pandas as pd
 
 
-#: Files of a study's output folder.
-CASES_FOLDER, STATE_FILE = "cases", "study.json"
 #: Most flagged cases whose messages summary.json lists (the table flags every case).
 MAX_FLAGGED_SUMMARY = 100
 #: What each column of the results table means besides the figures of
@@ -69,7 +66,7 @@ DEFINITIONS = {
     "holds": "true: every brake's static torque holds its joint's gravity load throughout the "
     "stop, and its sliding torque stops it; false: some brake cannot (see flags).",
     "flags": f"Broken assumptions behind the case's figures ({', '.join(FLAG_KINDS)}), ; "
-    "separated; each case record (cases/<case>.json) has the messages.",
+    "separated; each case's record (in cases/*.jsonl) has the messages.",
     **FIGURE_DEFINITIONS,
     "stop_time.<joint>": "That joint's stopping time [s].",
     "stop_angle.<joint>": "That joint's travel after the signal, |q(end) - q(signal)| [rad].",
@@ -187,10 +184,10 @@ def run_cases(
         except Exception as exc:
             _record_error(record, exc)
         record["timing"] = {"build": time.perf_counter() - start - spent + poses.share(i)}
-    for record in records:
-        if str(record.get("status", "")).startswith("error"):  # it could not be built
-            record["wall_time"] = sum(record["timing"].values())
-            keep(record)
+    failed = [r for r in records if str(r.get("status", "")).startswith("error")]
+    for record in failed:  # it could not be built
+        record["wall_time"] = sum(record["timing"].values())
+    keep(failed)
     groups: dict[str, list[tuple[dict[str, Any], Any, list[Any]]]] = {}
     for item in built:
         groups.setdefault(item[1].transition, []).append(item)
@@ -268,7 +265,7 @@ def _run_group(
     transition: str,
     items: Sequence[tuple[dict[str, Any], Any, list[Any]]],
     engine: str,
-    keep: Callable[[dict[str, Any]], None],
+    keep: Callable[[list[dict[str, Any]]], None],
 ) -> None:
     """Run cases of one transition rule, each with its bounds' variants, in one batch.
 
@@ -309,12 +306,12 @@ def _run_group(
         raise
     except Exception as exc:  # a bug: every case not yet done fails with it
         flush()
-        for k, (record, _, _) in enumerate(items):
-            if len(ended[k]) < sizes[k]:
-                _record_error(record, exc)
-                record["timing"]["report"] = 0.0
-                record["wall_time"] = sum(record["timing"].values())
-                keep(record)
+        failed = [record for k, (record, _, _) in enumerate(items) if len(ended[k]) < sizes[k]]
+        for record in failed:
+            _record_error(record, exc)
+            record["timing"]["report"] = 0.0
+            record["wall_time"] = sum(record["timing"].values())
+        keep(failed)
         return
     except BaseException:  # interrupted: the finished cases are kept
         flush()
@@ -326,7 +323,7 @@ def _complete_many(
     items: Sequence[tuple[dict[str, Any], Any, list[Any]]],
     done: Sequence[tuple[int, Sequence[tuple[Any, ...]]]],
     engine: str,
-    keep: Callable[[dict[str, Any]], None],
+    keep: Callable[[list[dict[str, Any]]], None],
 ) -> None:
     """Fill and keep the records of finished cases ``(k, its ended runs)``.
 
@@ -347,7 +344,7 @@ def _complete_many(
     share = (time.perf_counter() - begin) / max(1, len(done))
     for k, ended in done:
         _complete(items[k][0], items[k][1], ended, engine, motions, share)
-        keep(items[k][0])
+    keep([items[k][0] for k, _ in done])
 
 
 def _complete(
@@ -380,12 +377,31 @@ def _complete(
     record["wall_time"] = sum(record["timing"].values())
 
 
-def _keep(store: Path | None, record: dict[str, Any]) -> None:
-    """Write a finished case's record into the store's folder (if there is one)."""
-    if store is not None:
-        begin = time.perf_counter()
-        save_record(store, record)
-        record["timing"]["write"] = time.perf_counter() - begin
+def _keep(store: Path | None, records: list[dict[str, Any]]) -> None:
+    """Write finished cases' records into one file of the store's folder (if there is one).
+
+    A record holding NaN or an infinity is stored as the case's failure instead. The write's
+    time is shared out equally among the records (``timing.write``; not in the stored text).
+    """
+    if store is None or not records:
+        return
+    begin = time.perf_counter()
+    write_lines(store, records[0]["case"], [_sealed(record) for record in records])
+    share = (time.perf_counter() - begin) / len(records)
+    for record in records:
+        record["timing"]["write"] = share
+
+
+def _sealed(record: dict[str, Any]) -> str:
+    """The record's stored line (:func:`vtm_pin.study.store.seal`); a failure if it cannot."""
+    try:
+        return seal(record)
+    except ValueError:  # a figure that is NaN or infinite: the case failed, it is not a result
+        kept = {k: record[k] for k in ("case", "study", "index", "values", "timing", "wall_time")}
+        record.clear()
+        record.update(kept)
+        _record_error(record, StudyError("", "", "a figure came out NaN or infinite; not a result"))
+        return seal(record)
 
 
 #: This process's study bases that pass the scenario schema (by their repr), and those that do
@@ -478,255 +494,6 @@ def _one_line(text: str) -> str:
     return " ".join(text.split())
 
 
-#: Keys every stored case record has, and the JSON types of their values.
-RECORD_KEYS: dict[str, type | tuple[type, ...]] = {
-    "case": str,
-    "study": str,
-    "index": int,
-    "values": dict,
-    "status": str,
-    "metrics": dict,
-    "timing": dict,
-    "wall_time": (int, float),
-    "checksum": str,
-}
-
-
-def seal(record: dict[str, Any]) -> str:
-    """The record as the JSON text stored, with ``checksum``: a hash of everything else.
-
-    Raises:
-        ValueError: The record holds NaN or an infinity (a record must not).
-    """
-    body = {k: v for k, v in record.items() if k != "checksum"}
-    record["checksum"] = _digest(body)
-    return json.dumps(record, indent=1, allow_nan=False) + "\n"
-
-
-def _digest(body: Mapping[str, Any]) -> str:
-    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
-def save_record(folder: Path, record: dict[str, Any]) -> None:
-    """Store one finished case in ``folder/cases``, atomically (a killed process leaves no part).
-
-    Raises:
-        OutputError: It cannot be written (naming the file and why).
-    """
-    path = folder / CASES_FOLDER / f"{record['case']}.json"
-    try:
-        text = seal(record)
-    except ValueError:  # a figure that is NaN or infinite: the case failed, it is not a result
-        kept = {k: record[k] for k in ("case", "study", "index", "values", "timing", "wall_time")}
-        record.clear()
-        record.update(kept)
-        _record_error(record, StudyError("", "", "a figure came out NaN or infinite; not a result"))
-        text = seal(record)
-    try:
-        _write_atomic(path, text)
-    except OSError as exc:
-        raise OutputError(
-            str(folder), f"cannot write the case record '{path}' ({exc.strerror or exc})"
-        ) from exc
-
-
-def check_record(record: Any, case: Case, study: str) -> str | None:
-    """Why a stored record cannot be kept for ``case`` of the study ``study`` (None if it can).
-
-    It must have the shape of :data:`RECORD_KEYS`, the case's id and axis values, the study's
-    fingerprint, finite metrics, and a checksum that matches its content.
-    """
-    if not isinstance(record, dict):
-        return "not a record (a mapping)"
-    for key, kind in RECORD_KEYS.items():
-        if not isinstance(record.get(key), kind) or isinstance(record.get(key), bool):
-            return f"'{key}' is missing or of the wrong type"
-    if record["case"] != case.id:
-        return f"it holds case {excerpt(record['case'])}"
-    if record["study"] != study:
-        return "it was computed for another study (or before it changed)"
-    body = {k: v for k, v in record.items() if k != "checksum"}
-    try:
-        if record["checksum"] != _digest(body):
-            return "its checksum does not match its content (edited or damaged)"
-    except ValueError:
-        return "it holds NaN or an infinity"
-    if _hash_values(record["values"]) != _hash_values(case.values):
-        return "its axis values are not the case's"
-    bad = [k for k, v in record["metrics"].items() if not _finite_or_none(v)]
-    if bad:
-        return f"metric {excerpt(bad[0])} is not a finite number"
-    return None
-
-
-def _hash_values(values: Mapping[str, Any]) -> str:
-    return json.dumps(values, sort_keys=True, default=str)
-
-
-def _finite_or_none(value: Any) -> bool:
-    if value is None:
-        return True
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-@dataclass
-class CaseStore:
-    """The records of a study's finished cases in ``DIR/cases``, one JSON file per case.
-
-    Attributes:
-        folder: The study's output folder.
-        study: The study.
-        records: Case id -> record, of the cases stored so far.
-        rejected: Stored records that were not kept (file name -> why); they are run again.
-        fresh: Whether :meth:`open` started the folder (it held no study before).
-    """
-
-    folder: Path
-    study: Study
-    records: dict[str, dict[str, Any]] = field(default_factory=dict)
-    rejected: dict[str, str] = field(default_factory=dict)
-    fresh: bool = False
-
-    @property
-    def cases_folder(self) -> Path:
-        """Where the case records are."""
-        return self.folder / CASES_FOLDER
-
-    def open(self, cases: Sequence[Case]) -> None:
-        """Create the folder, or reopen it: refuse another study's results, check the records.
-
-        A record that is not its case's (see :func:`check_record`) is not kept: its case is
-        computed again (:attr:`rejected` says which and why).
-
-        Args:
-            cases: The study's cases; only their records are loaded.
-
-        Raises:
-            StudyError: The folder holds the results of another study, or of this study
-                before its file or its base scenario changed, or case records without a
-                ``study.json``; or ``study.json`` cannot be read.
-            OutputError: The folder cannot be created or written.
-        """
-        state_path = self.folder / STATE_FILE
-        self._check_state(state_path)
-        target = self.cases_folder
-        try:
-            self.cases_folder.mkdir(parents=True, exist_ok=True)
-            if not state_path.is_file():
-                target = state_path
-                state = {"study": self.study.source, "fingerprint": self.study.fingerprint}
-                _write_atomic(state_path, json.dumps(state, indent=2) + "\n")
-                self.fresh = True
-        except OSError as exc:
-            raise OutputError(
-                str(self.folder), f"cannot write '{target}' ({exc.strerror or exc})"
-            ) from exc
-        for partial in self.cases_folder.glob(".*.json.*"):  # a killed writer's temporary file
-            partial.unlink(missing_ok=True)
-        for case in cases:
-            path = self.cases_folder / f"{case.id}.json"
-            if not os.path.lexists(path):
-                continue
-            try:
-                record = json.loads(read_text(path, StudyError))
-            except (StudyError, ValueError) as exc:
-                self.rejected[path.name] = f"cannot be read ({_one_line(str(exc))[:120]})"
-                continue
-            reason = check_record(record, case, self.study.fingerprint)
-            if reason is None:
-                self.records[case.id] = record
-            else:
-                self.rejected[path.name] = reason
-
-    def _check_state(self, state_path: Path) -> None:
-        """Refuse a folder that holds another study's results, or a damaged ``study.json``."""
-        changed = (
-            f"'{self.folder}' holds results of a different study (this study file or its base "
-            "scenario changed since they were computed); to start over, delete that folder or "
-            "choose another --out"
-        )
-        if not os.path.lexists(state_path):
-            if any(self.cases_folder.glob("*.json")):
-                raise StudyError(
-                    self.study.source,
-                    "",
-                    f"'{self.cases_folder}' holds case records but '{state_path}' is missing, "
-                    "so which study they belong to is unknown; to start over, delete that "
-                    "folder or choose another --out",
-                )
-            return
-        try:
-            state = json.loads(read_text(state_path, StudyError))
-        except (StudyError, ValueError) as exc:
-            reason = exc.problem if isinstance(exc, StudyError) else f"not JSON: {exc}"
-            raise StudyError(
-                str(state_path),
-                "",
-                f"cannot read this study's state file ({_one_line(reason)[:160]}); delete the "
-                "folder to start over, or choose another --out",
-            ) from exc
-        if not isinstance(state, dict) or not isinstance(state.get("fingerprint"), str):
-            raise StudyError(
-                str(state_path),
-                "fingerprint",
-                "the state file has no fingerprint (it is damaged); delete the folder to start "
-                "over, or choose another --out",
-            )
-        if state["fingerprint"] != self.study.fingerprint:
-            raise StudyError(self.study.source, "", changed)
-
-    def discard(self) -> None:
-        """Remove what this run wrote into a folder it started (a study that cannot run)."""
-        if not self.fresh:
-            return
-        for case in self.records:
-            (self.cases_folder / f"{case}.json").unlink(missing_ok=True)
-        with contextlib.suppress(OSError):
-            self.cases_folder.rmdir()
-        (self.folder / STATE_FILE).unlink(missing_ok=True)
-
-    def save(self, record: dict[str, Any]) -> None:
-        """Store one finished case (see :func:`save_record`)."""
-        save_record(self.folder, record)
-        self.records[record["case"]] = record
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename.
-
-    A killed process leaves the old file or the new one, never a part (and perhaps a
-    temporary ``.NAME.<pid>.<n>`` file, which is never read). There is no fsync: the page
-    cache outlives the process, and a case lost to a power cut is run again. The temporary
-    file is created with mode 0o666 less the umask, as any new file (``os.open``, exclusive:
-    a name left by a killed process of the same id is skipped).
-    """
-    data = text.encode()
-    while True:
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.{next(_TEMPORARY)}")
-        try:
-            fd = _create(tmp)
-            break
-        except FileExistsError:
-            continue
-    try:
-        with open(fd, "wb") as file:
-            file.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def _create(path: Path) -> int:
-    """A new file's descriptor, for writing (mode 0o666 less the umask; it must not exist)."""
-    return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-
-
-#: Numbers of this process's temporary files (:func:`_write_atomic`).
-_TEMPORARY = itertools.count()
-
-
 def default_workers() -> int:
     """The number of cores this process may use."""
     try:
@@ -817,12 +584,9 @@ def _run_held(
         _execute(tasks, workers or default_workers(), client, engine, out)
     ) as run:
         for record in run:
-            if local:
-                store.records[record["case"]] = record
-            else:
-                begin = time.perf_counter()
-                store.save(record)
-                record["timing"]["write"] = time.perf_counter() - begin  # this run's
+            if not local:  # stored here, one record a file
+                _keep(out, [record])
+            store.records[record["case"]] = record
             if progress is not None:
                 progress(len(store.records), len(cases))
     records = [store.records[case.id] for case in cases]
@@ -1090,7 +854,7 @@ def _common_assumptions(records: Sequence[Mapping[str, Any]]) -> list[str]:
     if len(templates) > len(shown):
         common.append(
             f"{len(templates) - len(shown)} further per-case statements are in each case's "
-            "record, cases/<case>.json."
+            "record, in cases/*.jsonl."
         )
     return common
 
