@@ -434,3 +434,39 @@ def test_the_workers_of_a_bare_pool_die_with_their_zombie_driver(tmp_path: Path)
     assert time.monotonic() - begin < ORPHAN_EXIT
     assert len(tree) >= 3
     assert not survivors(tree)
+
+
+#: A driver without the thread variables that runs a pool and prints what its workers see.
+PINNED = """
+import json, os
+from vtm_pin.study import executors
+def work(piece):
+    return [{{n: os.environ.get(n) for n in executors.THREAD_VARIABLES}}]
+if __name__ == "__main__":
+    if {early}:
+        executors.start_fork_server()
+    seen = list(executors.on_pool([[1], [2], [3], [4]], work, 2))
+    print(json.dumps([seen, {{n: os.environ.get(n) for n in executors.THREAD_VARIABLES}}]))
+"""
+
+
+@pytest.mark.skipif(
+    "forkserver" not in multiprocessing.get_all_start_methods(), reason="no fork server"
+)
+@pytest.mark.parametrize("early", [False, True])
+def test_pool_workers_run_with_blas_threads_pinned_to_one(tmp_path: Path, early: bool) -> None:
+    """The workers fork from a server that started with the variables at 1, whether a pool or
+    an early start (the study command's, while it reads the study) started it; the driver's own
+    environment is left as it was. (The server used to start at the pool's first task, after
+    the driver had put the variables back: the workers had the driver's.)"""
+    script = tmp_path / "pinned.py"
+    script.write_text(PINNED.format(early=early))
+    env = {k: v for k, v in os.environ.items() if k not in executors.THREAD_VARIABLES}
+    done = subprocess.run(
+        [sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    seen, driver = yaml.safe_load(done.stdout)
+    assert len(seen) == 4
+    assert all(worker == dict.fromkeys(executors.THREAD_VARIABLES, "1") for worker in seen)
+    assert driver == dict.fromkeys(executors.THREAD_VARIABLES)

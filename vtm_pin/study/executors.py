@@ -30,9 +30,11 @@ case is.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ctypes
 import gc
 import multiprocessing
+import multiprocessing.forkserver
 import os
 import re
 import signal
@@ -68,23 +70,45 @@ Work = Callable[[list[Any]], list[dict]]
 
 def on_pool(pieces: Sequence[list[Any]], work: Work, workers: int) -> Iterator[dict]:
     """Run ``work`` on each piece in a pool of ``workers`` processes; yield the records."""
-    methods = multiprocessing.get_all_start_methods()
-    context = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    if "forkserver" in methods:
-        context.set_forkserver_preload(PRELOAD)
-    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
-    os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))  # inherited by the workers
-    try:
+    context = start_fork_server()
+    with _pinned_threads():
         executor = ProcessPoolExecutor(
             workers, mp_context=context, initializer=_init_worker, initargs=(os.getpid(),)
         )
+    return _drain(executor, pieces, work, workers)
+
+
+def start_fork_server() -> multiprocessing.context.BaseContext:
+    """Start the pools' fork server now, if this platform has one; returns the pools' context.
+
+    The server imports :data:`PRELOAD` (~0.7 s) while the driver goes on (reading the study,
+    drawing its cases); a pool made later forks its workers from it at once. It starts with
+    the BLAS / OpenMP thread counts pinned to 1 (:data:`THREAD_VARIABLES`), which its workers
+    inherit: a server started by the pool's first task would have the driver's own. A no-op
+    if it runs already; ``spawn`` where there is no fork server.
+    """
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(PRELOAD)
+    with _pinned_threads():
+        multiprocessing.forkserver.ensure_running()
+    return context
+
+
+@contextlib.contextmanager
+def _pinned_threads() -> Iterator[None]:
+    """This process's environment with :data:`THREAD_VARIABLES` at 1, then as it was."""
+    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
+    os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))
+    try:
+        yield
     finally:
         for name, value in saved.items():
             if value is None:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
-    return _drain(executor, pieces, work, workers)
 
 
 def _drain(

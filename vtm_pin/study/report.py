@@ -777,7 +777,9 @@ def _section_flagged(summary: Mapping[str, Any], table: pd.DataFrame) -> str:
     for column, unit in (("tool_drop", "m"), ("tcp_max_displacement", "m")):
         if column in shown:
             frame[f"{column} [{unit}]"] = _numbers(shown, column)
-    frame["what broke"] = [messages.get(str(c), "see its record in cases/*.jsonl") for c in frame["case"]]
+    frame["what broke"] = [
+        messages.get(str(c), "see its record in cases/*.jsonl") for c in frame["case"]
+    ]
     parts.append(_html_table(frame, "flagged"))
     if len(flagged) > MAX_FLAGGED_LISTED:
         parts.append(

@@ -47,7 +47,7 @@ from ..outputs.figures import METRICS
 from ..outputs.flags import KINDS as FLAG_KINDS
 from ..physics.robot import RobotCache
 from .cases import Case, Study
-from .executors import close, connect, dask_workers, on_dask, on_pool
+from .executors import close, connect, dask_workers, on_dask, on_pool, start_fork_server
 from .store import CaseStore, seal, write_lines
 
 if TYPE_CHECKING:
@@ -544,6 +544,8 @@ def run_study(
             f"'{engine}' is not an engine; allowed: {', '.join(ENGINES)}",
         )
     client = connect(scheduler) if scheduler is not None else None  # before anything is written
+    if client is None and (workers or default_workers()) > 1:
+        start_fork_server()  # its imports meanwhile: drawing the cases, opening the store
     try:
         with output_lock(out):
             return _run_held(study, out, workers, (client, scheduler), progress, engine, outputs)
