@@ -470,3 +470,20 @@ def test_pool_workers_run_with_blas_threads_pinned_to_one(tmp_path: Path, early:
     assert len(seen) == 4
     assert all(worker == dict.fromkeys(executors.THREAD_VARIABLES, "1") for worker in seen)
     assert driver == dict.fromkeys(executors.THREAD_VARIABLES)
+
+
+def _pid_after(seconds: float) -> int:
+    time.sleep(seconds)
+    return os.getpid()
+
+
+def test_a_background_process_gives_its_result_and_is_ended_if_left_early() -> None:
+    """`in_background`: the function runs in another process; a caller that leaves early (an
+    error) does not wait for it: the process is terminated at once."""
+    with executors.in_background(_pid_after, 0.0) as future:
+        assert future.result(timeout=120) != os.getpid()
+    begin = time.monotonic()
+    with pytest.raises(RuntimeError), executors.in_background(_pid_after, 60.0) as future:
+        time.sleep(0.5)  # it has started
+        raise RuntimeError("the caller failed")
+    assert time.monotonic() - begin < 30.0  # not the 60 s it would have taken

@@ -501,3 +501,21 @@ def test_chromium_shows_tables_and_images(report, tmp_path):
     assert not_white > 0.02
     rgb = (pixels * 255).round().astype(np.int64) @ np.array([1 << 16, 1 << 8, 1])
     assert np.unique(rgb).size > 50  # a graph's curves, anti-aliased text: many colours
+
+
+def test_graphs_drawn_in_a_process_of_their_own_are_the_same_files(grid, report, tmp_path):
+    """A study on several workers draws its graphs in a process of its own while it writes
+    its tables (`vtm_pin.study.runner._finish`): the same PNG bytes as drawn here, and the
+    same report page."""
+    from vtm_pin.study.executors import in_background
+    from vtm_pin.study.report import stopping_images
+
+    folder, written = report
+    with in_background(stopping_images, grid, "ur10") as future:
+        images = future.result()
+    assert sorted(images) == sorted(n for n in written if n.endswith(".png"))
+    for name, data in images.items():
+        assert data == (folder / name).read_bytes(), name
+    again = write_study_report(tmp_path, summary(), grid, images)
+    assert again == written
+    assert (tmp_path / "report.html").read_text() == (folder / "report.html").read_text()

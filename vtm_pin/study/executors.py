@@ -47,7 +47,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any
+from typing import Any, TypeVar
 
 from ..exceptions import StudyError
 
@@ -64,6 +64,8 @@ PRELOAD = [
 #: kernel cannot end it with its parent).
 WATCHDOG_PERIOD = 1.0
 
+#: What a background function returns.
+T = TypeVar("T")
 #: A piece of work: its records.
 Work = Callable[[list[Any]], list[dict]]
 
@@ -76,6 +78,30 @@ def on_pool(pieces: Sequence[list[Any]], work: Work, workers: int) -> Iterator[d
             workers, mp_context=context, initializer=_init_worker, initargs=(os.getpid(),)
         )
     return _drain(executor, pieces, work, workers)
+
+
+@contextlib.contextmanager
+def in_background(function: Callable[..., T], *args: Any) -> Iterator[Future[T]]:
+    """``function(*args)`` in a process of its own while the caller goes on: its future.
+
+    The process forks from the pools' fork server (:func:`start_fork_server`) and is set up as
+    a pool worker is. Left early (Ctrl-C, an error), the process is terminated; otherwise it
+    is waited for.
+    """
+    context = start_fork_server()
+    with _pinned_threads():
+        executor = ProcessPoolExecutor(
+            1, mp_context=context, initializer=_init_worker, initargs=(os.getpid(),)
+        )
+    finished = False
+    try:
+        yield executor.submit(function, *args)
+        finished = True
+    finally:
+        if finished:
+            executor.shutdown(wait=True)
+        else:
+            _terminate(executor)
 
 
 def start_fork_server() -> multiprocessing.context.BaseContext:

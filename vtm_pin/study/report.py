@@ -600,32 +600,33 @@ def render_report_html(
     )
 
 
-def write_study_report(folder: Path, summary: Mapping[str, Any], table: pd.DataFrame) -> list[str]:
+def write_study_report(
+    folder: Path,
+    summary: Mapping[str, Any],
+    table: pd.DataFrame,
+    images: Mapping[str, bytes] | None = None,
+) -> list[str]:
     """Write a study's graphs, table and HTML report into ``folder``.
 
-    Writes ``stopping_*.png`` (:func:`plot_stopping_graphs`, at :data:`FIGURE_DPI`),
-    ``annex_b_table.csv`` (grid studies) or ``distribution.csv`` (sampled ones, see
-    :func:`is_sampled`) and ``report.html``. Each figure is drawn, saved and cleared before
-    the next, so large studies do not hold them all.
+    Writes ``stopping_*.png`` (:func:`stopping_images`), ``annex_b_table.csv`` (grid studies)
+    or ``distribution.csv`` (sampled ones, see :func:`is_sampled`) and ``report.html``.
 
     Args:
         folder: Output folder (created if missing).
         summary: The study's summary mapping (see :func:`render_report_html`).
         table: The study's results table (see the module docstring).
+        images: The graphs, if drawn already (``stopping_images(table, robot)``, e.g. in
+            another process); drawn here if None.
 
     Returns:
         The names of the files written, sorted.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    robot = str(_mapping(summary.get("study")).get("robot") or "")
-    images: dict[str, bytes] = {}
-    for name, figure in _stopping_graphs(table, robot):
-        buffer = io.BytesIO()
-        figure.savefig(buffer, format="png", dpi=FIGURE_DPI)
-        figure.clear()  # closed: no pyplot state holds it; free its artists at once
-        images[name] = buffer.getvalue()
-        (folder / name).write_bytes(images[name])
+    if images is None:
+        images = stopping_images(table, str(_mapping(summary.get("study")).get("robot") or ""))
+    for name, data in images.items():
+        (folder / name).write_bytes(data)
     if is_sampled(summary, table):
         csv_name, frame = "distribution.csv", distribution_table(table)
     else:
@@ -633,6 +634,21 @@ def write_study_report(folder: Path, summary: Mapping[str, Any], table: pd.DataF
     frame.to_csv(folder / csv_name, index=False)
     (folder / "report.html").write_text(render_report_html(summary, table, images), "utf-8")
     return sorted([*images, csv_name, "report.html"])
+
+
+def stopping_images(table: pd.DataFrame, robot: str) -> dict[str, bytes]:
+    """The stopping graphs (:func:`plot_stopping_graphs`) as PNG files' bytes, by file name.
+
+    At :data:`FIGURE_DPI`. Each figure is drawn, saved and cleared before the next, so large
+    studies do not hold them all.
+    """
+    images: dict[str, bytes] = {}
+    for name, figure in _stopping_graphs(table, robot):
+        buffer = io.BytesIO()
+        figure.savefig(buffer, format="png", dpi=FIGURE_DPI)
+        figure.clear()  # closed: no pyplot state holds it; free its artists at once
+        images[name] = buffer.getvalue()
+    return images
 
 
 def format_value(value: Any) -> str:
