@@ -649,7 +649,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def _study(args: argparse.Namespace) -> int:
     if args.scheduler is None and (args.workers or default_workers()) > 1:
-        start_fork_server()  # the pool's imports while the study is read (~0.5 s less)
+        start_fork_server()  # its imports overlap the reading of the study
     study = load_study(find_study(args.study))
     out = args.out if args.out is not None else Path("results") / study.name
     try:
