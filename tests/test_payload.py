@@ -24,8 +24,10 @@ from hypothesis import strategies as st
 from vtm_pin.exceptions import PayloadError, SettingError
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.physics.payload import (
+    KEPT_PAYLOADS,
     Payload,
     attach_payload,
+    attached,
     check_payload,
     describe_payload,
     inertia_matrix,
@@ -227,6 +229,33 @@ BAD = [
     (Payload(1.0, (0, 0, 0), frame="no_such_frame"), "frame", "frames: universe, world"),
     (Payload(1.0, (0, 0, 0), frame="base_link"), "frame", "fixed to the ground"),
 ]
+
+
+def test_attached_keeps_one_robot_per_payload_equal_to_the_bit() -> None:
+    """A study's payload classes share a robot (its Data, its reduced models); anything that
+    could change a figure (another mass, a centre of mass of -0.0, another frame) gets its own,
+    equal to a fresh attach_payload's; a refused payload is not kept."""
+    base = load_robot("ur10")  # its own cache, not the session's robot
+    payload = Payload(4.0, (0.0, 0.0, 0.05))
+    first = attached(base, payload)
+    assert attached(base, Payload(4.0, (0.0, 0.0, 0.05))) is first
+    fresh = attach_payload(base, payload)
+    assert first is not fresh and first == fresh
+    assert first.model.inertias[6] == fresh.model.inertias[6]
+    others = [
+        Payload(4.0 + 1e-12, (0.0, 0.0, 0.05)),
+        Payload(4.0, (-0.0, 0.0, 0.05)),
+        Payload(4.0, (0.0, 0.0, 0.05), np.diag([1e-3, 1e-3, 1e-3])),
+        Payload(4.0, (0.0, 0.0, 0.05), frame="wrist_3_link"),
+    ]
+    assert len({id(attached(base, other)) for other in others} | {id(first)}) == 5
+    with pytest.raises(PayloadError):
+        attached(base, Payload(-1.0, (0.0, 0.0, 0.0)))
+    with pytest.raises(PayloadError):  # refused again, not found kept
+        attached(base, Payload(-1.0, (0.0, 0.0, 0.0)))
+    for k in range(KEPT_PAYLOADS):  # a drawn payload per case: the oldest is let go
+        attached(base, Payload(float(k), (0.0, 0.0, 0.0)))
+    assert attached(base, payload) is not first
 
 
 @pytest.mark.parametrize(("payload", "key", "phrase"), BAD)

@@ -34,7 +34,7 @@ from ..numerics.integrators import DEFAULT_MAX_STEPS, DOP853, FIXED_STEP, INTEGR
 from ..numerics.integrators.base import steps_text
 from ..physics.brakes import Brake
 from ..physics.friction import Coulomb, FrictionLaw, IdealLock, Stribeck, Viscous
-from ..physics.payload import Payload, attach_payload, describe_payload, inertia_matrix
+from ..physics.payload import Payload, attached, describe_payload, inertia_matrix
 from ..physics.robot import Drive, Robot, load_robot, robot_data
 from ..physics.stop import DEFAULT_GAIN, DEFAULT_REST_SPEED, Stop
 from ..schemas import load_schema
@@ -367,7 +367,7 @@ def _payload(raw: Mapping[str, Any], tool_frame: str, source: str) -> Payload:
 
 def _attach(robot: Robot, payload: Payload, source: str) -> Robot:
     try:
-        return attach_payload(robot, payload)
+        return attached(robot, payload)
     except PayloadError as exc:
         raise ScenarioError(source, f"payload.{exc.key}", exc.problem) from exc
 
