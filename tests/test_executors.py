@@ -472,6 +472,68 @@ def test_pool_workers_run_with_blas_threads_pinned_to_one(tmp_path: Path, early:
     assert driver == dict.fromkeys(executors.THREAD_VARIABLES)
 
 
+WARM = """
+import json, sys
+from vtm_pin.physics import chain_dynamics
+from vtm_pin.study import executors
+def work(piece):
+    kernel = chain_dynamics._compiled() if chain_dynamics.runs() else None
+    return [{"trimesh": "trimesh" in sys.modules, "numba": "numba" in sys.modules,
+             "runs": chain_dynamics.runs(),
+             "compiled": None if kernel is None else len(kernel.signatures)}]
+if __name__ == "__main__":
+    seen = list(executors.on_pool([[1], [2]], work, 2))
+    print(json.dumps([seen, "trimesh" in sys.modules]))
+"""
+
+
+@pytest.mark.skipif(
+    "forkserver" not in multiprocessing.get_all_start_methods(), reason="no fork server"
+)
+def test_workers_start_with_what_their_first_case_would_load(tmp_path: Path) -> None:
+    """The fork server loads trimesh, and Numba's kernels with their one signature each
+    (vtm_pin.study.preload), before it forks: a worker's first case no longer pays ~0.6 s for
+    them. The driver loads neither."""
+    script = tmp_path / "warm.py"
+    script.write_text(WARM)
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    seen, driver = yaml.safe_load(done.stdout)
+    assert len(seen) == 2 and not driver
+    for worker in seen:
+        assert worker["trimesh"]
+        if worker["runs"]:  # the fast extra, and Numba can run here
+            assert worker["numba"] and worker["compiled"] == 1
+
+
+def test_a_pooled_study_is_read_from_the_command_line_before_the_cli_is_imported(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`vtm-pin study` on local workers starts the fork server before the CLI's imports;
+    anything else, or anything the guess cannot read, leaves it to the command."""
+    from vtm_pin import __main__ as entry
+
+    monkeypatch.setattr(entry, "default_workers", lambda: 2)
+    assert entry.pooled_study(["study", "s.yaml"])
+    assert entry.pooled_study(["study", "s.yaml", "--workers", "3", "--engine", "scalar"])
+    assert entry.pooled_study(["study", "--work=2", "s.yaml"])  # argparse's abbreviations
+    for argv in (
+        [],
+        ["run", "s.yaml"],
+        ["program", "p.yaml"],
+        ["study", "s.yaml", "--workers", "1"],
+        ["study", "s.yaml", "--workers=1"],
+        ["study", "s.yaml", "--scheduler", "tcp://127.0.0.1:8786"],
+        ["study", "s.yaml", "--workers", "two"],  # the command says what is wrong
+        ["study", "--help"],
+    ):
+        assert not entry.pooled_study(argv), argv
+    monkeypatch.setattr(entry, "default_workers", lambda: 1)
+    assert not entry.pooled_study(["study", "s.yaml"])
+
+
 def _pid_after(seconds: float) -> int:
     time.sleep(seconds)
     return os.getpid()

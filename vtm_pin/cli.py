@@ -62,9 +62,9 @@ from .scene.program import PROGRAMS_DIR
 from .scene.scenario import SCENARIOS_DIR, Scenario, build_integrator, list_scenarios, load_scenario
 from .shipped import KINDS, init_files, shipped_names
 from .study.cases import STUDIES_DIR, Study, find_study, load_study
-from .study.executors import start_fork_server
+from .study.executors import default_workers, start_fork_server
 from .study.program_report import format_program, run_program
-from .study.runner import default_workers, format_study, run_study
+from .study.runner import format_study, run_study
 from .study.store import count_stored
 from .study.sweep import DEFAULT_EVERY, DEFAULT_TOLERANCE, SEARCH_FIGURES, load_program_study
 

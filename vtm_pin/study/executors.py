@@ -59,6 +59,7 @@ PRELOAD = [
     "vtm_pin.outputs.pipeline",
     "vtm_pin.scene.annex_b",
     "example_robot_data",
+    "vtm_pin.study.preload",  # trimesh, Numba and the compiled kernels: ~0.6 s a worker
 ]
 #: How often a pool worker checks that its driver is alive [s] (the fallback where the
 #: kernel cannot end it with its parent).
@@ -104,11 +105,20 @@ def in_background(function: Callable[..., T], *args: Any) -> Iterator[Future[T]]
             _terminate(executor)
 
 
+def default_workers() -> int:
+    """The number of cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def start_fork_server() -> multiprocessing.context.BaseContext:
     """Start the pools' fork server now, if this platform has one; returns the pools' context.
 
-    The server imports :data:`PRELOAD` (~0.7 s) while the driver goes on (reading the study,
-    drawing its cases); a pool made later forks its workers from it at once. It starts with
+    The server imports :data:`PRELOAD` (~1.2 s) while the driver goes on (importing the
+    command, reading the study, drawing its cases); a pool made later forks its workers from
+    it, which start their cases at once (:mod:`vtm_pin.study.preload`). It starts with
     the BLAS / OpenMP thread counts pinned to 1 (:data:`THREAD_VARIABLES`), which its workers
     inherit: a server started by the pool's first task would have the driver's own. A no-op
     if it runs already; ``spawn`` where there is no fork server.

@@ -23,7 +23,6 @@ import dataclasses
 import functools
 import json
 import math
-import os
 import platform
 import re
 import statistics
@@ -51,6 +50,7 @@ from .executors import (
     close,
     connect,
     dask_workers,
+    default_workers,
     in_background,
     on_dask,
     on_pool,
@@ -500,14 +500,6 @@ def _record_error(record: dict[str, Any], exc: Exception) -> None:
 
 def _one_line(text: str) -> str:
     return " ".join(text.split())
-
-
-def default_workers() -> int:
-    """The number of cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def run_study(
