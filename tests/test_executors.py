@@ -479,6 +479,7 @@ from vtm_pin.study import executors
 def work(piece):
     kernel = chain_dynamics._compiled() if chain_dynamics.runs() else None
     return [{"trimesh": "trimesh" in sys.modules, "numba": "numba" in sys.modules,
+             "agg": "matplotlib.backends.backend_agg" in sys.modules,
              "runs": chain_dynamics.runs(),
              "compiled": None if kernel is None else len(kernel.signatures)}]
 if __name__ == "__main__":
@@ -493,7 +494,8 @@ if __name__ == "__main__":
 def test_workers_start_with_what_their_first_case_would_load(tmp_path: Path) -> None:
     """The fork server loads trimesh, and Numba's kernels with their one signature each
     (vtm_pin.study.preload), before it forks: a worker's first case no longer pays ~0.6 s for
-    them. The driver loads neither."""
+    them; and Matplotlib, which the study's graphs process (forked from it too) then does not
+    import (~0.5 s). The driver loads none of them."""
     script = tmp_path / "warm.py"
     script.write_text(WARM)
     done = subprocess.run(
@@ -503,7 +505,7 @@ def test_workers_start_with_what_their_first_case_would_load(tmp_path: Path) -> 
     seen, driver = yaml.safe_load(done.stdout)
     assert len(seen) == 2 and not driver
     for worker in seen:
-        assert worker["trimesh"]
+        assert worker["trimesh"] and worker["agg"]
         if worker["runs"]:  # the fast extra, and Numba can run here
             assert worker["numba"] and worker["compiled"] == 1
 

@@ -5,7 +5,7 @@ imports nothing heavy itself, so that Ctrl-C during those imports exits with sta
 one line, as it does during a run.
 
 A study on local workers starts the pools' fork server first
-(:func:`~vtm_pin.study.executors.start_fork_server`), so that its imports (~1.2 s) run beside
+(:func:`~vtm_pin.study.executors.start_fork_server`), so that its imports (~1.7 s) run beside
 the CLI's and its workers can start their cases as soon as the driver has drawn them.
 """
 

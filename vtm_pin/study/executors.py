@@ -60,6 +60,8 @@ PRELOAD = [
     "vtm_pin.scene.annex_b",
     "example_robot_data",
     "vtm_pin.study.preload",  # trimesh, Numba and the compiled kernels: ~0.6 s a worker
+    "vtm_pin.outputs.plotting",  # Matplotlib, for the study's graphs (in_background)
+    "matplotlib.backends.backend_agg",
 ]
 #: How often a pool worker checks that its driver is alive [s] (the fallback where the
 #: kernel cannot end it with its parent).
@@ -116,9 +118,10 @@ def default_workers() -> int:
 def start_fork_server() -> multiprocessing.context.BaseContext:
     """Start the pools' fork server now, if this platform has one; returns the pools' context.
 
-    The server imports :data:`PRELOAD` (~1.2 s) while the driver goes on (importing the
+    The server imports :data:`PRELOAD` (~1.7 s) while the driver goes on (importing the
     command, reading the study, drawing its cases); a pool made later forks its workers from
-    it, which start their cases at once (:mod:`vtm_pin.study.preload`). It starts with
+    it, which start their cases at once (:mod:`vtm_pin.study.preload`), and the graphs' process
+    with Matplotlib loaded. It starts with
     the BLAS / OpenMP thread counts pinned to 1 (:data:`THREAD_VARIABLES`), which its workers
     inherit: a server started by the pool's first task would have the driver's own. A no-op
     if it runs already; ``spawn`` where there is no fork server.
