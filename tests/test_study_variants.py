@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 import yaml
 
+from vtm_pin.scene import scenario as scenario_module
 from vtm_pin.scene.scenario import SCENARIOS_DIR, build_scenario
 from vtm_pin.study import cases as cases_module
 from vtm_pin.study.cases import Case, Study, case_scenario, find_study, load_study
@@ -112,6 +113,43 @@ def test_brake_axes_still_change_the_brakes(tmp_path: Path) -> None:
     failed = built(study, {"failed_brake": "elbow_joint"})
     assert {b.joint for b in failed.brakes} == set(rated) - {"elbow_joint"}  # not re-merged
     assert {b.joint for b in built(study, {}).brakes} == set(rated)  # the base is untouched
+
+
+def test_the_cases_of_a_base_share_its_merge_and_brakes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Cases that hold what the merge reads as their base's own are merged and braked once:
+    the robot data file is read for the first only, and each scenario equals a fresh build
+    (its keys in the same order). A case whose axes change the brakes, and the cases of
+    another base, are merged anew."""
+    reads: list[str] = []
+    robot_data = scenario_module.robot_data
+
+    def counted(*args: Any) -> Any:
+        reads.append(str(args[0]))
+        return robot_data(*args)
+
+    monkeypatch.setattr(scenario_module, "robot_data", counted)
+    study = load_study(find_study("ur10_envelope"))
+    assert reads  # loading the study built its base
+    reads.clear()
+    values = [dict(case.values) for case in study.cases()[:4]]
+    first, *others = [built(study, v) for v in values]
+    assert not reads  # its cases read nothing more
+    for v, scenario in zip(values, [first, *others], strict=True):
+        raw = case_scenario(study.base, Case("c", 0, v))
+        fresh = build_scenario(raw, source=str(study.scenario), base_dir=study.scenario.parent)
+        assert list(scenario.raw) == list(fresh.raw) and scenario.raw == fresh.raw
+        assert scenario.brakes == fresh.brakes and scenario.brakes is first.brakes
+        assert scenario.problem.q0.tolist() == fresh.problem.q0.tolist()
+    worn_study = load_study(write(tmp_path, "scenario: ur10_annex_b\nvary: {brake_scale: [0.5]}"))
+    assert reads  # another base: merged anew
+    reads.clear()
+    worn = built(worn_study, {"brake_scale": 0.5})
+    again = built(worn_study, {"brake_scale": 0.5})
+    assert len(reads) == 2  # the brakes are the case's own: merged each time
+    assert worn.brakes == again.brakes and worn.brakes != built(worn_study, {}).brakes
+    assert len(reads) == 2  # a case without axes is its base
 
 
 def test_an_edited_fragment_is_not_served_stale(
