@@ -7,6 +7,7 @@ prints up to its very exit, and which processes it leaves behind.
 
 from __future__ import annotations
 
+import functools
 import gc
 import multiprocessing
 import os
@@ -20,6 +21,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -508,6 +510,22 @@ def test_workers_start_with_what_their_first_case_would_load(tmp_path: Path) -> 
         assert worker["trimesh"] and worker["agg"]
         if worker["runs"]:  # the fast extra, and Numba can run here
             assert worker["numba"] and worker["compiled"] == 1
+
+
+def _set_up(value: str) -> None:
+    os.environ["VTM_PIN_TEST_SETUP"] = value
+
+
+def _set_up_seen(piece: list[Any]) -> list[dict[str, Any]]:
+    return [{"seen": os.environ.get("VTM_PIN_TEST_SETUP"), "pid": os.getpid()} for _ in piece]
+
+
+def test_a_pools_set_up_runs_in_each_worker_before_its_pieces() -> None:
+    """on_pool's ``setup`` (a study hands its workers the driver's robot models this way)."""
+    setup = functools.partial(_set_up, "models kept")
+    records = list(executors.on_pool([[1], [2], [3], [4]], _set_up_seen, 2, setup=setup))
+    assert [r["seen"] for r in records] == ["models kept"] * 4
+    assert os.environ.get("VTM_PIN_TEST_SETUP") is None  # not the driver's
 
 
 def test_a_pooled_study_is_read_from_the_command_line_before_the_cli_is_imported(

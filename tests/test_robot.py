@@ -255,3 +255,33 @@ def test_a_one_joint_robot_loads_and_runs(tmp_path, capsys):
     )
     summary = json.loads(capsys.readouterr().out)
     assert summary["robot"] == "one.urdf" and len(summary["events"]) == 1
+
+
+def test_a_worker_keeps_its_drivers_example_models_and_builds_none(monkeypatch):
+    """A study's pool workers are handed their driver's example-robot-data models, pickled:
+    each loads the robot from them (the same model, its dynamics to the bit) and does not
+    build it again from the URDF (~0.45 s for the UR10, meshes included)."""
+    import pickle
+
+    import example_robot_data
+    import pinocchio as pin
+
+    from vtm_pin.physics import robot as robot_module
+
+    fresh = robot_module.load_robot("ur10")
+    handed = pickle.loads(pickle.dumps(robot_module.example_models()))
+    assert "ur10" in handed
+    monkeypatch.setattr(robot_module, "_EXAMPLE_MODELS", robot_module.ModelCache(16))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("built again from the URDF")
+
+    monkeypatch.setattr(example_robot_data, "load", refuse)
+    robot_module.keep_example_models(handed)
+    kept = robot_module.load_robot("ur10")
+    assert kept.model == fresh.model and kept.source == fresh.source
+    q, v, a = np.full(6, 0.3), np.full(6, -0.7), np.full(6, 1.1)
+    assert np.array_equal(
+        pin.rnea(kept.model, kept.model.createData(), q, v, a),
+        pin.rnea(fresh.model, fresh.model.createData(), q, v, a),
+    )

@@ -78,6 +78,10 @@ class ModelCache:
         self._items.clear()
         self._kinematic = OrderedDict()
 
+    def items(self) -> list[tuple[Hashable, Any]]:
+        """The entries kept (not the kinematic ones), oldest first."""
+        return list(self._items.items())
+
     def __len__(self) -> int:
         """Number of entries kept (the kinematic ones included)."""
         return len(self._items) + len(self._kinematic)

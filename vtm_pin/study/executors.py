@@ -73,12 +73,23 @@ T = TypeVar("T")
 Work = Callable[[list[Any]], list[dict]]
 
 
-def on_pool(pieces: Sequence[list[Any]], work: Work, workers: int) -> Iterator[dict]:
-    """Run ``work`` on each piece in a pool of ``workers`` processes; yield the records."""
+def on_pool(
+    pieces: Sequence[list[Any]],
+    work: Work,
+    workers: int,
+    setup: Callable[[], None] | None = None,
+) -> Iterator[dict]:
+    """Run ``work`` on each piece in a pool of ``workers`` processes; yield the records.
+
+    ``setup`` (picklable) runs once in each worker before its first piece.
+    """
     context = start_fork_server()
     with _pinned_threads():
         executor = ProcessPoolExecutor(
-            workers, mp_context=context, initializer=_init_worker, initargs=(os.getpid(),)
+            workers,
+            mp_context=context,
+            initializer=_init_worker,
+            initargs=(os.getpid(), setup),
         )
     return _drain(executor, pieces, work, workers)
 
@@ -225,8 +236,10 @@ def tune_collector() -> None:
     gc.set_threshold(*WORKER_GC_THRESHOLDS)
 
 
-def _init_worker(driver: int) -> None:
+def _init_worker(driver: int, setup: Callable[[], None] | None = None) -> None:
     """A pool worker: Ctrl-C is the driver's to handle; the worker ends when the driver dies.
+
+    Then ``setup()``, if given (:func:`on_pool`).
 
     A driver killed outright (SIGKILL) cannot shut its pool down. Its fork server then sees
     the driver's end of their pipe close and exits; on Linux the kernel kills the worker when
@@ -242,6 +255,8 @@ def _init_worker(driver: int) -> None:
     if os.getppid() != parent or not _alive(driver):
         os._exit(1)
     threading.Thread(target=_watch, args=(driver, parent), daemon=True).start()
+    if setup is not None:
+        setup()
 
 
 def _die_with_parent() -> None:

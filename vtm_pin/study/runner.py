@@ -44,7 +44,7 @@ from ..files.staging import output_lock, write_staged
 from ..outputs.figures import DEFINITIONS as FIGURE_DEFINITIONS
 from ..outputs.figures import METRICS
 from ..outputs.flags import KINDS as FLAG_KINDS
-from ..physics.robot import RobotCache
+from ..physics.robot import RobotCache, example_models, keep_example_models
 from .cases import Case, Study
 from .executors import (
     close,
@@ -688,7 +688,9 @@ def _execute(
         for chunk in chunks:
             yield from work(chunk)
         return
-    yield from on_pool(chunks, work, min(workers, len(chunks)))
+    # the workers get the driver's robot models (the study's, loaded to check its base)
+    models = functools.partial(keep_example_models, example_models())
+    yield from on_pool(chunks, work, min(workers, len(chunks)), setup=models)
 
 
 def _finish(
