@@ -257,7 +257,7 @@ def test_a_one_joint_robot_loads_and_runs(tmp_path, capsys):
     assert summary["robot"] == "one.urdf" and len(summary["events"]) == 1
 
 
-def test_a_worker_keeps_its_drivers_example_models_and_builds_none(monkeypatch):
+def test_a_worker_keeps_its_drivers_example_models_and_builds_none(monkeypatch, tmp_path):
     """A study's pool workers are handed their driver's example-robot-data models, pickled:
     each loads the robot from them (the same model, its dynamics to the bit) and does not
     build it again from the URDF (~0.45 s for the UR10, meshes included)."""
@@ -268,6 +268,7 @@ def test_a_worker_keeps_its_drivers_example_models_and_builds_none(monkeypatch):
 
     from vtm_pin.physics import robot as robot_module
 
+    monkeypatch.setenv("VTM_PIN_CACHE", str(tmp_path))  # none kept on disk either
     fresh = robot_module.load_robot("ur10")
     handed = pickle.loads(pickle.dumps(robot_module.example_models()))
     assert "ur10" in handed
@@ -285,3 +286,44 @@ def test_a_worker_keeps_its_drivers_example_models_and_builds_none(monkeypatch):
         pin.rnea(kept.model, kept.model.createData(), q, v, a),
         pin.rnea(fresh.model, fresh.model.createData(), q, v, a),
     )
+
+
+def test_example_models_are_kept_on_disk_exactly_and_rebuilt_when_stale(monkeypatch, tmp_path):
+    """An example-robot-data model is built once (its meshes too, ~0.45 s for the UR10) and
+    then read from the model store: equal to the one built. A damaged file, or one whose
+    URDF has changed since, is built again and rewritten; a folder that cannot be written
+    only means that nothing is kept."""
+    import example_robot_data
+
+    from vtm_pin.files import model_store
+    from vtm_pin.physics import robot as robot_module
+
+    monkeypatch.setenv("VTM_PIN_CACHE", str(tmp_path))
+    built = []
+    load = example_robot_data.load
+
+    def counted(name, *args, **kwargs):
+        built.append(name)
+        return load(name, *args, **kwargs)
+
+    monkeypatch.setattr(example_robot_data, "load", counted)
+
+    def fresh_load():
+        monkeypatch.setattr(robot_module, "_EXAMPLE_MODELS", robot_module.ModelCache(16))
+        return robot_module.load_robot("ur5")
+
+    first = fresh_load()
+    (kept,) = (tmp_path / "models").glob("ur5-*.json")
+    again = fresh_load()
+    assert built == ["ur5"] and again.model == first.model and again.source == first.source
+    kept.write_text(kept.read_text()[:-200])  # damaged
+    assert fresh_load().model == first.model and built == ["ur5"] * 2
+    entry = json.loads(kept.read_text())  # rewritten whole
+    entry["stat"][0] += 1  # the URDF changed since
+    kept.write_text(json.dumps(entry))
+    assert fresh_load().model == first.model and built == ["ur5"] * 3
+    assert model_store.read("ur5", {"pinocchio": "0"}) is None  # other versions: not this file
+    blocked = tmp_path / "a file"  # its models folder cannot be made, even by root
+    blocked.write_text("")
+    monkeypatch.setenv("VTM_PIN_CACHE", str(blocked))
+    assert fresh_load().model == first.model and built == ["ur5"] * 4

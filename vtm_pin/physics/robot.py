@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import importlib.metadata
 import io
 import math
 import os
@@ -28,6 +29,7 @@ from ..exceptions import (
     UnsupportedJoint,
     excerpt,
 )
+from ..files import model_store
 from ..files.inputs import (
     MAX_MASS,
     check_schema,
@@ -324,7 +326,15 @@ def _load_model(
 
 
 def _load_example(name: str) -> tuple[pin.Model, str]:
-    """An example-robot-data robot's model (its loader also builds meshes: 0.5 s, so once)."""
+    """An example-robot-data robot's model, from the models kept on disk if it is there.
+
+    Its loader also builds the meshes (~0.45 s for the UR10), so the model it built is kept
+    (:mod:`vtm_pin.files.model_store`, exact, checked against the URDF and the versions).
+    """
+    versions = {"pinocchio": pin.__version__, "example-robot-data": _version("example-robot-data")}
+    kept = model_store.read(name, versions)
+    if kept is not None:
+        return kept
     import example_robot_data as erd
 
     with _parser_messages() as messages:
@@ -333,7 +343,17 @@ def _load_example(name: str) -> tuple[pin.Model, str]:
         except Exception as exc:  # the loader raises bare exceptions of several kinds
             raise RobotLoadError(name, excerpt(" ".join(str(exc).split()), 200)) from exc
     _refuse_parser_errors(messages, name)
-    return wrapper.model, str(getattr(wrapper, "urdf", name))
+    source = str(getattr(wrapper, "urdf", name))
+    model_store.write(name, versions, wrapper.model, source)
+    return wrapper.model, source
+
+
+def _version(package: str) -> str:
+    """The installed version of ``package``; "" if it cannot be told."""
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return ""
 
 
 #: The example-robot-data models this process has loaded, by name (never modified: copied).
