@@ -130,12 +130,12 @@ def start_fork_server() -> multiprocessing.context.BaseContext:
     """Start the pools' fork server now, if this platform has one; returns the pools' context.
 
     The server imports :data:`PRELOAD` (~1.7 s) while the driver goes on (importing the
-    command, reading the study, drawing its cases); a pool made later forks its workers from
-    it, which start their cases at once (:mod:`vtm_pin.study.preload`), and the graphs' process
-    with Matplotlib loaded. It starts with
-    the BLAS / OpenMP thread counts pinned to 1 (:data:`THREAD_VARIABLES`), which its workers
-    inherit: a server started by the pool's first task would have the driver's own. A no-op
-    if it runs already; ``spawn`` where there is no fork server.
+    command, reading the study, drawing its cases). A pool made later forks its workers from
+    it, which start their cases at once (:mod:`vtm_pin.study.preload`), and the graphs'
+    process, with Matplotlib loaded. It starts with the BLAS / OpenMP thread counts pinned to
+    1 (:data:`THREAD_VARIABLES`), which its workers inherit: a server started by the pool's
+    first task would have the driver's own. A no-op if it runs already; ``spawn`` where there
+    is no fork server.
     """
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
