@@ -1613,6 +1613,11 @@ def _run_batch(
                 reasons[run.index] = f"the batched engine failed ({type(exc).__name__})"
                 if on_done is not None:
                     on_done(run.index, run.outcome, reasons[run.index], None)
+    finally:
+        # The engine and its clock refer to each other: left so, the batch, its runs and
+        # whatever ``on_done`` holds (a study's scenarios and results) would wait for the
+        # collector's oldest generation, which a study worker's thresholds make rare.
+        batch.finished = None
 
 
 class _Clock:
