@@ -268,14 +268,14 @@ def test_a_full_disk_names_the_file_it_could_not_write(
     capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from vtm_pin.study import store as study_store
+    from vtm_pin.files import staging
 
     def full(*args: object, **kwargs: object) -> object:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     path = write_study(tmp_path, SMALL)
     out = tmp_path / "out"
-    monkeypatch.setattr(study_store, "_create", full)
+    monkeypatch.setattr(staging, "_create", full)
     code, err = rerun(path, out, capsys)
     line = one_error_line(err)
     assert code == 1 and "No space left on device" in line and str(out) in line
@@ -517,28 +517,28 @@ def test_a_record_is_written_whole_through_a_temporary_file_of_its_own(
     overwritten; a failed rename leaves no temporary file."""
     import itertools
 
-    from vtm_pin.study import store as study_store
+    from vtm_pin.files import staging
 
     path = tmp_path / "c1.json"
     old = os.umask(0o027)
     try:
-        study_store.write_atomic(path, '{"a": 1}\n')
+        staging.write_atomic(path, '{"a": 1}\n')
     finally:
         os.umask(old)
     assert path.read_text() == '{"a": 1}\n'
     assert path.stat().st_mode & 0o777 == 0o640
     assert [p.name for p in tmp_path.iterdir()] == ["c1.json"]
-    monkeypatch.setattr(study_store, "_TEMPORARY", itertools.count(5))
+    monkeypatch.setattr(staging, "_TEMPORARY", itertools.count(5))
     leftover = tmp_path / f".c1.json.{os.getpid()}.5"
     leftover.write_text("partial")
-    study_store.write_atomic(path, '{"a": 2}\n')
+    staging.write_atomic(path, '{"a": 2}\n')
     assert path.read_text() == '{"a": 2}\n' and leftover.read_text() == "partial"
 
     def broken(*args: object) -> None:
         raise OSError(errno.EIO, os.strerror(errno.EIO))
 
-    monkeypatch.setattr(study_store.os, "replace", broken)
+    monkeypatch.setattr(staging.os, "replace", broken)
     with pytest.raises(OSError):
-        study_store.write_atomic(path, '{"a": 3}\n')
+        staging.write_atomic(path, '{"a": 3}\n')
     assert sorted(p.name for p in tmp_path.iterdir()) == [leftover.name, "c1.json"]
     assert path.read_text() == '{"a": 2}\n'

@@ -16,14 +16,14 @@ that cannot be read or written is rebuilt, or not kept.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import pinocchio as pin
+
+from .staging import write_atomic
 
 #: Version of this module's file layout (a file of another layout is not read).
 FORMAT = 1
@@ -62,7 +62,7 @@ def write(name: str, versions: dict[str, str], model: pin.Model, source: str) ->
     """Keep ``model`` (built from the URDF ``source``) for the next run; whether it was kept.
 
     Not kept if it does not read back equal to itself, if ``source`` is not a file, or if the
-    folder cannot be written (written to a temporary file, then renamed: a reader sees the
+    folder cannot be written (:func:`~vtm_pin.files.staging.write_atomic`: a reader sees the
     whole file or none).
     """
     try:
@@ -82,15 +82,7 @@ def write(name: str, versions: dict[str, str], model: pin.Model, source: str) ->
         }
         path = _path(name, versions)
         path.parent.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".tmp")
-        try:
-            with os.fdopen(handle, "w", encoding="utf-8") as out:
-                json.dump(entry, out)
-            os.replace(temporary, path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(temporary)
-            raise
+        write_atomic(path, json.dumps(entry))
         return True
     except Exception:  # a read-only or full disk: built again next time
         return False

@@ -4,13 +4,15 @@
 folder is refused in one line while the first holds it (``flock``: on one machine, and on
 network file systems that carry it). :func:`write_staged` writes a run's files into a staging
 folder beside the output folder and then moves them in together; a staging folder left by a
-run killed outright is removed by the next run into the same folder.
+run killed outright is removed by the next run into the same folder. :func:`write_atomic`
+writes one file whole (a study's case records, the models kept between runs).
 """
 
 from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import os
 import shutil
 import tempfile
@@ -134,3 +136,38 @@ def write_staged(out: str | Path, write: Callable[[Path], None]) -> list[str]:
             if staging is not None:
                 shutil.rmtree(staging, ignore_errors=True)
     return written
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename.
+
+    A killed process leaves the old file or the new one, never a part (and perhaps a
+    temporary ``.NAME.<pid>.<n>`` file, which is never read). There is no fsync: the page
+    cache outlives the process, and a case lost to a power cut is run again. The temporary
+    file is created with mode 0o666 less the umask, as any new file (``os.open``, exclusive:
+    a name left by a killed process of the same id is skipped).
+    """
+    data = text.encode()
+    while True:
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{next(_TEMPORARY)}")
+        try:
+            fd = _create(tmp)
+            break
+        except FileExistsError:
+            continue
+    try:
+        with open(fd, "wb") as file:
+            file.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _create(path: Path) -> int:
+    """A new file's descriptor, for writing (mode 0o666 less the umask; it must not exist)."""
+    return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+
+
+#: Numbers of this process's temporary files (:func:`write_atomic`).
+_TEMPORARY = itertools.count()

@@ -3,10 +3,11 @@
 The records are JSON Lines files in ``DIR/cases``: each file holds the cases a worker
 finished together (up to :data:`vtm_pin.study.runner.REPORT_CASES`, one with the scalar
 engine), one sealed record a line (:func:`seal`). A file is written once, through a temporary
-file and a rename (:func:`write_atomic`): a killed process leaves whole files only. Its name is
-its first case's id and a random token (``<id>-<token>.jsonl``), so no file ever replaces
-another. One file for many cases, not one a case: creating a file costs ~0.1-0.5 ms on this
-project's machines, more than a case's record takes to encode.
+file and a rename (:func:`~vtm_pin.files.staging.write_atomic`): a killed process leaves
+whole files only. Its name is its first case's id and a random token
+(``<id>-<token>.jsonl``), so no file ever replaces another. One file for many cases, not one
+a case: creating a file costs ~0.1-0.5 ms on this project's machines, more than a case's
+record takes to encode.
 
 On resume (:meth:`CaseStore.open`) every line is checked (:func:`check_record`); a line that is
 not a record of this study's case is not kept (its case is computed again), and its file is
@@ -17,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import itertools
 import json
 import math
 import os
@@ -29,6 +29,7 @@ from typing import Any
 
 from ..exceptions import OutputError, StudyError, excerpt
 from ..files.inputs import read_text
+from ..files.staging import write_atomic
 from .cases import Case, Study
 
 #: Files of a study's output folder.
@@ -296,38 +297,3 @@ class CaseStore:
         with contextlib.suppress(OSError):
             self.cases_folder.rmdir()
         (self.folder / STATE_FILE).unlink(missing_ok=True)
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename.
-
-    A killed process leaves the old file or the new one, never a part (and perhaps a
-    temporary ``.NAME.<pid>.<n>`` file, which is never read). There is no fsync: the page
-    cache outlives the process, and a case lost to a power cut is run again. The temporary
-    file is created with mode 0o666 less the umask, as any new file (``os.open``, exclusive:
-    a name left by a killed process of the same id is skipped).
-    """
-    data = text.encode()
-    while True:
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.{next(_TEMPORARY)}")
-        try:
-            fd = _create(tmp)
-            break
-        except FileExistsError:
-            continue
-    try:
-        with open(fd, "wb") as file:
-            file.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def _create(path: Path) -> int:
-    """A new file's descriptor, for writing (mode 0o666 less the umask; it must not exist)."""
-    return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-
-
-#: Numbers of this process's temporary files (:func:`write_atomic`).
-_TEMPORARY = itertools.count()
