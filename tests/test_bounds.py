@@ -33,6 +33,7 @@ from vtm_pin.scene.scenario import build_scenario
 from vtm_pin.standards.bounds import (
     BoundSpec,
     Uncertainty,
+    error_gain,
     shortfall_allowance,
     upper_bounds,
     variants,
@@ -304,6 +305,52 @@ def test_the_upper_bound_is_never_below_the_nominal_figure(
         assert upper[f"{name}_upper"] >= nominal
         assert upper[f"{name}_upper"] >= worn
         assert math.isfinite(upper[f"{name}_upper"])
+
+
+@settings(max_examples=200, deadline=None, derandomize=True, database=None)
+@given(
+    nominal=_figure,
+    worn=_figure,
+    moved=st.lists(_figure, min_size=1, max_size=4),
+    sigma=st.lists(st.floats(1e-6, 10.0), min_size=4, max_size=4),
+    bias=st.floats(-0.5, 0.5),
+    confidence=st.floats(0.5, 0.9999),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_a_bound_enlarges_its_runs_errors_at_most_by_its_error_gain(
+    nominal, worn, moved, sigma, bias, confidence, seed
+):
+    """Every run's figure moved by at most d moves the upper bound by at most d error_gain.
+
+    This is what lets the batched and scalar engines' bounds be compared at that tolerance
+    (tests/test_batch.py::test_shipped_studies_agree). Round-off allowance 1e-12 of the
+    figures' scale: the bound's own arithmetic on figures up to 1e3.
+    """
+    k = len(moved)
+    rng = np.random.default_rng(seed)
+    s = np.array(sigma[:k])
+    A = rng.normal(size=(k, k))
+    covariance = (A @ A.T) * np.outer(s, s) / k
+    uncertainty = Uncertainty(
+        names=tuple(f"f{i}" for i in range(k)),
+        values=np.ones(k),
+        keys=tuple(("brakes.j.delay",) for _ in range(k)),
+        covariance=covariance,
+        bias={"stop_time": bias, "stop_distance": bias},
+        source="property",
+    )
+    spec = BoundSpec(confidence, 0.1)
+    d = 1e-7
+    figures = np.array([nominal, worn, *moved])
+    off = figures + rng.uniform(-d, d, figures.size)
+
+    def upper(f: np.ndarray) -> float:
+        runs = [{"robot_stop_time": float(x)} for x in f[1:]]
+        bound = upper_bounds({"robot_stop_time": float(f[0])}, runs, spec, uncertainty)
+        return float(bound["robot_stop_time_upper"])
+
+    gain = error_gain(spec, uncertainty)
+    assert abs(upper(off) - upper(figures)) <= d * gain + 1e-12 * figures.max() * gain
 
 
 def test_uncertainty_section_inflates_by_chi2_and_names_fixed_figures(tmp_path):

@@ -247,9 +247,14 @@ def upper_bounds(
         spread, short = 0.0, 0.0
         if uncertainty is not None:
             spread = _spread([float(m[name] or 0.0) for m in moved], fw, uncertainty)
-            short = uncertainty.shortfall.get(kind, min(0.0, uncertainty.bias.get(kind, 0.0)))
+            short = _shortfall(uncertainty, kind)
         out[f"{name}_upper"] = max(f, fw) + spec.z * spread + shortfall_allowance(short, fw)
     return out
+
+
+def _shortfall(uncertainty: Uncertainty, kind: str) -> float:
+    """The relative residual a bound of ``kind`` adds back for (its worst, else its bias)."""
+    return uncertainty.shortfall.get(kind, min(0.0, uncertainty.bias.get(kind, 0.0)))
 
 
 def _spread(moved: Sequence[float], worn: float, uncertainty: Uncertainty) -> float:
@@ -260,6 +265,26 @@ def _spread(moved: Sequence[float], worn: float, uncertainty: Uncertainty) -> fl
     g = (np.asarray(moved) - worn) / uncertainty.steps[index]
     c = uncertainty.covariance[np.ix_(index, index)]
     return float(math.sqrt(max(0.0, float(g @ c @ g))))
+
+
+def error_gain(spec: BoundSpec, uncertainty: Uncertainty | None) -> float:
+    """The most :func:`upper_bounds` can enlarge an error its runs' figures share [-].
+
+    A bound is max(f, f_w) + z sqrt(g^T C g) + a f_w, with g_i = (f_i - f_w) / s_i over the
+    moved figures and a = -r / (1 + r) for a shortfall r < 0. Runs whose figures are each off
+    by at most d (e.g. the integrator's tolerance) give g's off by at most 2 d / s_i, so the
+    bound is off by at most d (1 + a + 2 z sqrt(sum_ij |C_ij| / (s_i s_j))). 1 without a
+    calibration (the bound is then the larger of two runs' figures).
+    """
+    if uncertainty is None:
+        return 1.0
+    shortfalls = [_shortfall(uncertainty, kind) for kind in set(BOUNDED.values())]
+    a = max(-r / (1.0 + r) for r in [*shortfalls, 0.0])
+    i = uncertainty.moved
+    ratios = np.abs(uncertainty.covariance[np.ix_(i, i)]) / np.outer(
+        uncertainty.steps[i], uncertainty.steps[i]
+    )
+    return 1.0 + a + 2.0 * spec.z * math.sqrt(float(ratios.sum()))
 
 
 def shortfall_allowance(shortfall: float, figure: float) -> float:
