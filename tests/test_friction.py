@@ -35,6 +35,19 @@ def test_stribeck_falls_from_static_to_coulomb():
     assert law.kinetic(5.0) == pytest.approx(3.0, abs=1e-15)
 
 
+def test_stribeck_holds_its_static_torque_past_rest():
+    """Past rest (w < 0, a trial stage of a step that overshoots the rest) the law holds tau_s.
+
+    It meets the drop at w = 0 with the drop's value and slope (0), and never falls back to
+    tau_c there: a step that overshoots a peak narrower than itself sees the peak past rest.
+    """
+    law = Stribeck(3.0, 5.0, stribeck_velocity=0.5)
+    for w in (-1e-300, -1e-6, -0.5, -1e3, -math.inf):
+        assert law.kinetic(w) == 5.0  # [N m]
+    slope = (law.kinetic(1e-7) - law.kinetic(0.0)) / 1e-7
+    assert abs(slope) < 1e-5  # [N m s/rad]: 2 (2 w / w_s^2) exp(-...) at 1e-7 rad/s is 1.6e-6
+
+
 def slide_to_rest(friction, v1=2.0):
     """Joint 1 of the pendulum braked from 2 rad/s; joints 2 and 3 ideal-locked at engagement.
 

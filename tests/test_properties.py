@@ -622,6 +622,32 @@ EXAMPLE_STIFF_BRAKE_ON_LIGHT_JOINT = EStop(
 )
 
 
+#: Before the fix: joint 1's Stribeck peak (tau_s = 2 tau_c, w_s = 0.01 rad/s motor side, 1e-4
+#: rad/s joint side) is narrower than one step. The brake engages at -3.8e-3 rad/s and the
+#: step of 2.3e-4 s ran on to +1.5e-2 rad/s, every stage on tau_c: accepted at every rtol
+#: (1e-6 to 1e-12). The continuous extension's extra stages fell on the peak, so the rest it
+#: located carried a brake work 1.19e-5 J short of the energy lost (1.08e-5 of the scale,
+#: against BALANCE_RTOL 1e-5), the same at every rtol. The law now holds tau_s past rest.
+EXAMPLE_NARROW_STRIBECK_PEAK = EStop(
+    "panda",
+    np.array([1.0, 0.0, 0.0, -2.0, -0.5, 0.0, 0.0, 0.0, 0.0]),
+    np.zeros(9),
+    Stop(0.0, 0, gain=50.0, rest_speed=0.001),
+    (
+        Brake("panda_joint1", 0.04296875, Stribeck(1.0, 2.0, stribeck_velocity=0.01)),
+        Brake("panda_joint2"),
+        Brake("panda_joint3"),
+        Brake("panda_joint4", 0.015625, Coulomb(0.19809567785503387, ramp=0.0234375)),
+        Brake("panda_joint5", 0.0625, Coulomb(0.01)),
+        Brake("panda_joint6"),
+        Brake("panda_joint7"),
+        Brake("panda_finger_joint1", 0.0625, Coulomb(1.0)),
+        Brake("panda_finger_joint2"),
+    ),
+    0.5,
+)
+
+
 # ---------------------------------------------------------------------------------------------
 # What is checked
 
@@ -816,7 +842,7 @@ PROPERTIES = {
     "energy_balance_within_integrator_accuracy": (
         check_energy_balance,
         estops(),
-        [EXAMPLE_LOCK_AT_T0, EXAMPLE_STIFF_BRAKE_ON_LIGHT_JOINT],
+        [EXAMPLE_LOCK_AT_T0, EXAMPLE_STIFF_BRAKE_ON_LIGHT_JOINT, EXAMPLE_NARROW_STRIBECK_PEAK],
     ),
     # Category 0 only: there the lock's multiplier is exactly the friction a stuck joint needs;
     # in category 1 the drives' computed torque depends on which joints are locked, and a

@@ -165,7 +165,19 @@ class Stribeck(Coulomb):
         return "stribeck"
 
     def kinetic(self, speed: float) -> float:
-        """tau_c + (tau_s - tau_c) exp(-(w / w_s)^2) [N m]."""
+        """tau_c + (tau_s - tau_c) exp(-(w / w_s)^2) [N m]; past rest (w < 0) tau_s.
+
+        The continuation past rest holds the law's value at rest, with its slope there (0),
+        rather than mirroring the drop: a step that jumps from far above w_s to past rest
+        then sees the peak at its stages past rest, and its error estimate rejects it until
+        the drop is resolved. The mirrored drop is tau_c on both sides of a narrow peak that
+        no stage need sample: such a step was accepted at every rtol, and its continuous
+        extension, whose extra stages do fall on the peak, located the rest with a work
+        that missed ~1e-5 of the energy (tests/test_properties.py,
+        EXAMPLE_NARROW_STRIBECK_PEAK).
+        """
+        if speed < 0.0:
+            return self.breakaway_torque
         x = speed / self.stribeck_velocity
         if not abs(x) < 30.0:  # exp(-900) is below every float: Coulomb (and no overflow)
             return self.sliding_torque
