@@ -23,6 +23,7 @@ from vtm_pin import load_scenario, run_scenario
 from vtm_pin.cli import main
 from vtm_pin.outputs.figures import stop_figures
 from vtm_pin.outputs.stopping import compute_stopping_report
+from vtm_pin.physics import body_kernel
 from vtm_pin.physics.arm_points import (
     GEOMETRY,
     SEGMENTS,
@@ -327,12 +328,26 @@ def test_the_bounded_search_finds_the_largest_displacement_of_all_points_and_sam
             assert (result.distance, result.index, result.sample) == (0.0, 0, 0)
 
 
+#: max_displacements' two paths: the compiled kernel (the fast extra) and NumPy.
+PATHS = [
+    pytest.param(
+        True,
+        id="compiled",
+        marks=pytest.mark.skipif(not body_kernel.AVAILABLE, reason="Numba is not installed"),
+    ),
+    pytest.param(False, id="numpy"),
+]
+
+
+@pytest.mark.parametrize("compiled", PATHS)
 @pytest.mark.parametrize("name", ["ur10", "panda"])
-def test_many_trajectories_at_once_find_what_each_finds_alone(name):
+def test_many_trajectories_at_once_find_what_each_finds_alone(name, compiled, monkeypatch):
     """max_displacements (a study's reports, together) against max_displacement one by one
     and against every point at every sample, on the random walks above in one call, with a
     trajectory of one sample and the tie of the planar arm's test: the same distance to
-    round-off (1e-12 relative, 1e-14 m), the same point and sample (its tie rule included)."""
+    round-off (1e-12 relative, 1e-14 m), the same point and sample (its tie rule included).
+    On either path (the compiled kernel's sums run in another order: round-off)."""
+    monkeypatch.setattr(body_kernel, "AVAILABLE", compiled)
     r = robot(name)
     points = sample_arm_points(r, per_link=PER_LINK)
     rng = np.random.default_rng(28)
@@ -357,7 +372,9 @@ def test_many_trajectories_at_once_find_what_each_finds_alone(name):
         assert (arm.index, arm.sample, arm.link) == (alone.index, alone.sample, alone.link)
 
 
-def test_many_at_once_name_the_first_sample_and_point_of_a_tie():
+@pytest.mark.parametrize("compiled", PATHS)
+def test_many_at_once_name_the_first_sample_and_point_of_a_tie(compiled, monkeypatch):
+    monkeypatch.setattr(body_kernel, "AVAILABLE", compiled)
     r = robot("planar_3r")
     points = sample_arm_points(r, per_link=PER_LINK)
     there, back = np.linspace(0.0, math.pi, 40), np.linspace(math.pi, 0.0, 40)

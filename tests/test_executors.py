@@ -476,14 +476,15 @@ def test_pool_workers_run_with_blas_threads_pinned_to_one(tmp_path: Path, early:
 
 WARM = """
 import json, sys
-from vtm_pin.physics import chain_dynamics
+from vtm_pin.physics import arm_kernel, body_kernel, chain_dynamics
 from vtm_pin.study import executors
 def work(piece):
-    kernel = chain_dynamics._compiled() if chain_dynamics.runs() else None
+    kernels = (chain_dynamics._compiled, body_kernel._compiled, arm_kernel._compiled,
+               arm_kernel._compiled_speeds)
+    counts = [len(k().signatures) for k in kernels] if chain_dynamics.runs() else None
     return [{"trimesh": "trimesh" in sys.modules, "numba": "numba" in sys.modules,
              "agg": "matplotlib.backends.backend_agg" in sys.modules,
-             "runs": chain_dynamics.runs(),
-             "compiled": None if kernel is None else len(kernel.signatures)}]
+             "runs": chain_dynamics.runs(), "compiled": counts}]
 if __name__ == "__main__":
     seen = list(executors.on_pool([[1], [2]], work, 2))
     print(json.dumps([seen, "trimesh" in sys.modules]))
@@ -509,7 +510,7 @@ def test_workers_start_with_what_their_first_case_would_load(tmp_path: Path) -> 
     for worker in seen:
         assert worker["trimesh"] and worker["agg"]
         if worker["runs"]:  # the fast extra, and Numba can run here
-            assert worker["numba"] and worker["compiled"] == 1
+            assert worker["numba"] and worker["compiled"] == [1, 1, 1, 1]
 
 
 def _set_up(value: str) -> None:

@@ -189,10 +189,22 @@ def test_tool_column_norms_are_those_of_pinocchios_jacobian(name):
     np.testing.assert_allclose(norms, ref, rtol=0, atol=VEC_TOL)
 
 
+@pytest.mark.parametrize(
+    "compiled",
+    [
+        pytest.param(
+            True,
+            id="compiled",
+            marks=pytest.mark.skipif(not body_kernel.AVAILABLE, reason="Numba is not installed"),
+        ),
+        pytest.param(False, id="numpy"),
+    ],
+)
 @pytest.mark.parametrize("name", SHIPPED)
-def test_the_fastest_arm_points_are_pinocchios_point_by_point(name):
-    """fastest_point_speeds (many states at once, NumPy) against point_speeds (Pinocchio's
-    forward kinematics, one state): the same largest speed to round-off."""
+def test_the_fastest_arm_points_are_pinocchios_point_by_point(name, compiled, monkeypatch):
+    """fastest_point_speeds (many states at once, compiled or NumPy) against point_speeds
+    (Pinocchio's forward kinematics, one state): the same largest speed to round-off."""
+    monkeypatch.setattr(body_kernel, "AVAILABLE", compiled)
     arm = robot(name)
     points = sample_arm_points(arm)
     qs, vs = random_states(arm.model, seed=16, count=8)

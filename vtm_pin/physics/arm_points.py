@@ -45,6 +45,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..files.model_cache import ModelCache
+from . import arm_kernel, body_kernel
 from .kinematics import (
     body_velocities,
     cross,
@@ -456,11 +457,20 @@ def max_displacements(
             and (T, njoints, 3) [m].
     """
     counts = np.array([len(p) for _, p in placements])
-    firsts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    owner = np.repeat(np.arange(len(counts)), counts)  # each sample's trajectory
+    firsts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int)
     carry = points.groups.carry
     R = np.concatenate([r[:, carry] for r, _ in placements])
     o = np.concatenate([p[:, carry] for _, p in placements])
+    if arm_kernel.runs():
+        try:
+            found = arm_kernel.largest_displacements(
+                R, o, firsts, counts, points.groups, points.points, BOUND_SLACK, BOUND_FLOOR
+            )
+        except body_kernel.failures() as exc:  # Numba cannot run here: NumPy from now on
+            body_kernel.fall_back(exc)
+        else:
+            return [_displacement(points, *best) for best in zip(*found, strict=True)]
+    owner = np.repeat(np.arange(len(counts)), counts)  # each sample's trajectory
     turn = R - R[firsts][owner]  # (S, m, 3, 3): each sample against its trajectory's first
     shift = o - o[firsts][owner]
     bound = _bounds(points, turn, shift)
@@ -474,13 +484,20 @@ def max_displacements(
     order = np.lexsort((point, sample, -value, owner[sample]))
     _, first = np.unique(owner[sample][order], return_index=True)
     best = order[first]
-    out = []
-    for c, k in enumerate(best):
-        largest = float(value[k])
-        index, row = (int(point[k]), int(sample[k] - firsts[c])) if largest > 0.0 else (0, 0)
-        link = points.links[int(points.link[index])]
-        out.append(ArmDisplacement(math.sqrt(largest), index, link, row))
-    return out
+    return [
+        _displacement(points, value[k], point[k], sample[k] - firsts[c]) for c, k in enumerate(best)
+    ]
+
+
+def _displacement(points: ArmPoints, squared: float, index: int, row: int) -> ArmDisplacement:
+    """The :class:`ArmDisplacement` of a largest squared displacement [m^2], point and sample.
+
+    Point 0 at sample 0 where nothing moves.
+    """
+    if not squared > 0.0:
+        index, row = 0, 0
+    link = points.links[int(points.link[int(index)])]
+    return ArmDisplacement(math.sqrt(float(squared)), int(index), link, int(row))
 
 
 def _bounds(points: ArmPoints, turn: np.ndarray, shift: np.ndarray) -> np.ndarray:
@@ -576,6 +593,11 @@ def fastest_point_speeds(
     R, p = placements
     omega, velocity = body_velocities(chain, R, p, np.asarray(v, dtype=float))
     groups = points.groups
+    if arm_kernel.runs():
+        try:
+            return arm_kernel.fastest_speeds(R, omega, velocity, groups, points.points)
+        except body_kernel.failures() as exc:  # Numba cannot run here: NumPy from now on
+            body_kernel.fall_back(exc)
     out = np.zeros(len(R))
     for j, start, stop in zip(groups.joints, groups.starts, groups.stops, strict=True):
         arms = points.points[start:stop] @ R[:, j].transpose(0, 2, 1)  # (T, k, 3): R_j p_i

@@ -8,8 +8,8 @@ process): a worker's first 200 cases took ~0.6 s more than its next 200, in
 - trimesh and what it imports (~0.3 s), to read the meshes of the arm's points
   (:func:`vtm_pin.physics.arm_points.sample_arm_points`);
 - Numba (~0.2 s) and the compiled kernels' first calls (~0.3 s, loading the kernels from
-  Numba's cache: :mod:`vtm_pin.physics.chain_dynamics`, :mod:`vtm_pin.physics.body_kernel`),
-  with the ``fast`` extra.
+  Numba's cache: :mod:`vtm_pin.physics.chain_dynamics`, :mod:`vtm_pin.physics.body_kernel`,
+  :mod:`vtm_pin.physics.arm_kernel`), with the ``fast`` extra.
 
 Everything here is an optimisation only: whatever fails is left for the workers, which meet
 it where they always did (a kernel that cannot run falls back to NumPy there, said once).
@@ -22,7 +22,8 @@ import contextlib
 import numpy as np
 import pinocchio as pin
 
-from ..physics import body_kernel, chain_dynamics
+from ..physics import arm_kernel, body_kernel, chain_dynamics
+from ..physics.arm_points import ArmPoints
 from ..physics.kinematics import joint_chain
 
 
@@ -56,6 +57,13 @@ def warm_kernels() -> bool:
         np.zeros(2),
         gravity,
     )
+    points = ArmPoints(
+        np.zeros((1, 3)), np.ones(1, dtype=int), np.zeros(1, dtype=int), ("a",), "", "", 0.0, 1
+    )
+    R, o = np.zeros((1, 1, 3, 3)), np.zeros((1, 1, 3))
+    one = np.ones(1, dtype=int)
+    arm_kernel.largest_displacements(R, o, one - 1, one, points.groups, points.points, 0.0, 0.0)
+    arm_kernel.fastest_speeds(R, o, o, points.groups, points.points)
     return True
 
 
