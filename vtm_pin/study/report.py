@@ -56,6 +56,9 @@ if TYPE_CHECKING:
 
 #: Resolution of the saved graphs [dots per inch], as ``vtm-pin run``'s figures.
 FIGURE_DPI = 120
+#: zlib level of the study's graphs [0-9]: 1 encodes the 10,000-case study's three ~0.4 MB
+#: graphs ~0.08 s faster than PIL's default 6, 9 % larger.
+PNG_COMPRESSION = 1
 #: An axis with more distinct values than this was drawn from a range (sampled): graphs
 #: scatter the cases instead of joining them with lines.
 CONTINUOUS_VALUES = 8
@@ -639,14 +642,17 @@ def write_study_report(
 def stopping_images(table: pd.DataFrame, robot: str) -> dict[str, bytes]:
     """The stopping graphs (:func:`plot_stopping_graphs`) as PNG files' bytes, by file name.
 
-    At :data:`FIGURE_DPI`. Each figure is drawn, saved and cleared before the next, so large
-    studies do not hold them all.
+    At :data:`FIGURE_DPI`, compressed at :data:`PNG_COMPRESSION`. Each figure is drawn and
+    saved before the next is made, and then dropped (no pyplot state holds it), so large
+    studies do not hold them all. (Clearing it as well cost ~0.06 s of the 10,000-case
+    study's ~1 s of graphs, on the command's critical path.)
     """
     images: dict[str, bytes] = {}
     for name, figure in _stopping_graphs(table, robot):
         buffer = io.BytesIO()
-        figure.savefig(buffer, format="png", dpi=FIGURE_DPI)
-        figure.clear()  # closed: no pyplot state holds it; free its artists at once
+        figure.savefig(
+            buffer, format="png", dpi=FIGURE_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION}
+        )
         images[name] = buffer.getvalue()
     return images
 
