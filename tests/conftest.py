@@ -13,9 +13,25 @@ import pytest
 
 import vtm_pin
 from vtm_pin import Problem, Robot, SimulationResult, load_robot, simulate
+from vtm_pin.physics import body_kernel
 from vtm_pin.physics.brakes import Brake
 from vtm_pin.physics.friction import Coulomb
 from vtm_pin.physics.stop import Stop
+
+#: A test's two paths where a compiled kernel may run (parameter ``compiled``, to set
+#: ``body_kernel.AVAILABLE`` to): NumPy, the default and the fallback, and the compiled kernels
+#: of the ``fast`` extra.
+KERNEL_PATHS = pytest.mark.parametrize(
+    "compiled",
+    [
+        False,
+        pytest.param(
+            True,
+            marks=pytest.mark.skipif(not body_kernel.AVAILABLE, reason="Numba is not installed"),
+        ),
+    ],
+    ids=["numpy", "compiled"],
+)
 
 # Every module of the package, imported before any test runs. Hypothesis draws from the
 # constants of the project modules already imported ("local constants", Hypothesis 6.1xx), so

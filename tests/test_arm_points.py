@@ -17,7 +17,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
-from conftest import SCENARIOS, robot
+from conftest import KERNEL_PATHS, SCENARIOS, robot
 
 from vtm_pin import load_scenario, run_scenario
 from vtm_pin.cli import main
@@ -328,18 +328,7 @@ def test_the_bounded_search_finds_the_largest_displacement_of_all_points_and_sam
             assert (result.distance, result.index, result.sample) == (0.0, 0, 0)
 
 
-#: max_displacements' two paths: the compiled kernel (the fast extra) and NumPy.
-PATHS = [
-    pytest.param(
-        True,
-        id="compiled",
-        marks=pytest.mark.skipif(not body_kernel.AVAILABLE, reason="Numba is not installed"),
-    ),
-    pytest.param(False, id="numpy"),
-]
-
-
-@pytest.mark.parametrize("compiled", PATHS)
+@KERNEL_PATHS
 @pytest.mark.parametrize("name", ["ur10", "panda"])
 def test_many_trajectories_at_once_find_what_each_finds_alone(name, compiled, monkeypatch):
     """max_displacements (a study's reports, together) against max_displacement one by one
@@ -372,7 +361,7 @@ def test_many_trajectories_at_once_find_what_each_finds_alone(name, compiled, mo
         assert (arm.index, arm.sample, arm.link) == (alone.index, alone.sample, alone.link)
 
 
-@pytest.mark.parametrize("compiled", PATHS)
+@KERNEL_PATHS
 def test_many_at_once_name_the_first_sample_and_point_of_a_tie(compiled, monkeypatch):
     monkeypatch.setattr(body_kernel, "AVAILABLE", compiled)
     r = robot("planar_3r")

@@ -13,6 +13,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
+from conftest import KERNEL_PATHS
 
 import vtm_pin as vp
 from vtm_pin.core.batch import (
@@ -47,27 +48,12 @@ def _payload(rng: np.random.Generator) -> Payload:
     return Payload(mass, tuple(rng.uniform(-0.1, 0.1, 3)), inertia)
 
 
-#: The batched engine's two paths: NumPy (and Pinocchio's RNEA columns), the default and the
-#: fallback, and the compiled kernels of the ``fast`` extra.
-PATHS = pytest.mark.parametrize(
-    "compiled",
-    [
-        False,
-        pytest.param(
-            True,
-            marks=pytest.mark.skipif(not body_kernel.AVAILABLE, reason="Numba is not installed"),
-        ),
-    ],
-    ids=["numpy", "compiled"],
-)
-
-
 def _path(monkeypatch: pytest.MonkeyPatch, compiled: bool) -> None:
     monkeypatch.setattr(body_kernel, "AVAILABLE", compiled)
     monkeypatch.setattr(chain_dynamics, "AVAILABLE", compiled)
 
 
-@PATHS
+@KERNEL_PATHS
 def test_lanes_with_their_own_inertias_have_their_own_models_dynamics(
     compiled: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -146,7 +132,7 @@ def test_models_differing_in_inertias_only_share_a_batch_key() -> None:
     assert batch_key(moved) != batch_key(robot.model)
 
 
-@PATHS
+@KERNEL_PATHS
 def test_runs_with_drawn_payloads_are_batched_and_agree_with_the_scalar_engine(
     compiled: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:

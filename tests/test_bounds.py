@@ -271,32 +271,38 @@ def test_the_bound_covers_the_truth_in_a_small_sample(tmp_path):
 _figure = st.floats(1e-3, 1e3, allow_nan=False)
 
 
-@settings(max_examples=200, deadline=None, derandomize=True, database=None)
-@given(
-    nominal=_figure,
-    worn=_figure,
-    moved=st.lists(_figure, min_size=1, max_size=4),
-    sigma=st.lists(st.floats(1e-6, 10.0), min_size=4, max_size=4),
-    bias=st.floats(-0.5, 0.5),
-    wear=st.floats(0.0, 0.9),
-    confidence=st.floats(0.5, 0.9999),
-)
-def test_the_upper_bound_is_never_below_the_nominal_figure(
-    nominal, worn, moved, sigma, bias, wear, confidence
-):
-    k = len(moved)
-    s = np.array(sigma[:k])
-    rng = np.random.default_rng(k)
-    A = rng.normal(size=(k, k))
-    covariance = (A @ A.T) * np.outer(s, s) / k
-    uncertainty = Uncertainty(
+def random_uncertainty(sigma: np.ndarray, bias: float, seed: int) -> Uncertainty:
+    """Figures of value 1 whose covariance has the 1-sigma ``sigma`` and random correlations."""
+    k = len(sigma)
+    A = np.random.default_rng(seed).normal(size=(k, k))
+    return Uncertainty(
         names=tuple(f"f{i}" for i in range(k)),
         values=np.ones(k),
         keys=tuple(("brakes.j.delay",) for _ in range(k)),
-        covariance=covariance,
+        covariance=(A @ A.T) * np.outer(sigma, sigma) / k,
         bias={"stop_time": bias, "stop_distance": bias},
         source="property",
     )
+
+
+#: A bound's runs and calibration, drawn: the nominal, worn and moved runs' figures, the
+#: moved figures' 1-sigma, the calibration's bias and the bound's confidence.
+_BOUND_DRAWS = {
+    "nominal": _figure,
+    "worn": _figure,
+    "moved": st.lists(_figure, min_size=1, max_size=4),
+    "sigma": st.lists(st.floats(1e-6, 10.0), min_size=4, max_size=4),
+    "bias": st.floats(-0.5, 0.5),
+    "confidence": st.floats(0.5, 0.9999),
+}
+
+
+@settings(max_examples=200, deadline=None, derandomize=True, database=None)
+@given(**_BOUND_DRAWS, wear=st.floats(0.0, 0.9))
+def test_the_upper_bound_is_never_below_the_nominal_figure(
+    nominal, worn, moved, sigma, bias, wear, confidence
+):
+    uncertainty = random_uncertainty(np.array(sigma[: len(moved)]), bias, len(moved))
     spec = BoundSpec(confidence, wear)
     metrics = {name: nominal for name in ("robot_stop_time", "stop_angle")}
     runs = [{name: worn for name in metrics}] + [{name: m for name in metrics} for m in moved]
@@ -308,15 +314,7 @@ def test_the_upper_bound_is_never_below_the_nominal_figure(
 
 
 @settings(max_examples=200, deadline=None, derandomize=True, database=None)
-@given(
-    nominal=_figure,
-    worn=_figure,
-    moved=st.lists(_figure, min_size=1, max_size=4),
-    sigma=st.lists(st.floats(1e-6, 10.0), min_size=4, max_size=4),
-    bias=st.floats(-0.5, 0.5),
-    confidence=st.floats(0.5, 0.9999),
-    seed=st.integers(0, 2**32 - 1),
-)
+@given(**_BOUND_DRAWS, seed=st.integers(0, 2**32 - 1))
 def test_a_bound_enlarges_its_runs_errors_at_most_by_its_error_gain(
     nominal, worn, moved, sigma, bias, confidence, seed
 ):
@@ -326,19 +324,8 @@ def test_a_bound_enlarges_its_runs_errors_at_most_by_its_error_gain(
     (tests/test_batch.py::test_shipped_studies_agree). Round-off allowance 1e-12 of the
     figures' scale: the bound's own arithmetic on figures up to 1e3.
     """
-    k = len(moved)
     rng = np.random.default_rng(seed)
-    s = np.array(sigma[:k])
-    A = rng.normal(size=(k, k))
-    covariance = (A @ A.T) * np.outer(s, s) / k
-    uncertainty = Uncertainty(
-        names=tuple(f"f{i}" for i in range(k)),
-        values=np.ones(k),
-        keys=tuple(("brakes.j.delay",) for _ in range(k)),
-        covariance=covariance,
-        bias={"stop_time": bias, "stop_distance": bias},
-        source="property",
-    )
+    uncertainty = random_uncertainty(np.array(sigma[: len(moved)]), bias, seed)
     spec = BoundSpec(confidence, 0.1)
     d = 1e-7
     figures = np.array([nominal, worn, *moved])

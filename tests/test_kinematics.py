@@ -3,7 +3,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import SCENARIOS, robot
+from conftest import KERNEL_PATHS, SCENARIOS, robot
 
 from vtm_pin import load_scenario, run_scenario
 from vtm_pin.outputs.stopping import compute_stopping_report
@@ -189,17 +189,7 @@ def test_tool_column_norms_are_those_of_pinocchios_jacobian(name):
     np.testing.assert_allclose(norms, ref, rtol=0, atol=VEC_TOL)
 
 
-@pytest.mark.parametrize(
-    "compiled",
-    [
-        pytest.param(
-            True,
-            id="compiled",
-            marks=pytest.mark.skipif(not body_kernel.AVAILABLE, reason="Numba is not installed"),
-        ),
-        pytest.param(False, id="numpy"),
-    ],
-)
+@KERNEL_PATHS
 @pytest.mark.parametrize("name", SHIPPED)
 def test_the_fastest_arm_points_are_pinocchios_point_by_point(name, compiled, monkeypatch):
     """fastest_point_speeds (many states at once, compiled or NumPy) against point_speeds
