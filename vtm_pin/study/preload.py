@@ -60,9 +60,10 @@ def warm_kernels() -> bool:
     points = ArmPoints(
         np.zeros((1, 3)), np.ones(1, dtype=int), np.zeros(1, dtype=int), ("a",), "", "", 0.0, 1
     )
-    R, o = np.zeros((1, 1, 3, 3)), np.zeros((1, 1, 3))
+    R, o = np.zeros((1, 2, 3, 3)), np.zeros((1, 2, 3))  # one sample, the world and joint 1
     one = np.ones(1, dtype=int)
-    arm_kernel.largest_displacements(R, o, one - 1, one, points.groups, points.points, 0.0, 0.0)
+    carried = (R[:, 1:], o[:, 1:])  # the joint that carries the point
+    arm_kernel.largest_displacements(*carried, one - 1, one, points.groups, points.points, 0, 0)
     arm_kernel.fastest_speeds(R, o, o, points.groups, points.points)
     return True
 
