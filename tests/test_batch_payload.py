@@ -22,6 +22,7 @@ from vtm_pin.core.batch import (
     _base_model,
     _Dynamics,
     _groups,
+    _model_keys,
     batch_key,
     model_key,
     robot_model_key,
@@ -170,8 +171,9 @@ def test_a_batchs_model_is_the_one_most_of_its_runs_have() -> None:
     robot = vp.load_robot("ur10")
     light = attach_payload(robot, Payload(1.0, (0.0, 0.0, 0.05)))
     heavy = [attach_payload(robot, Payload(8.0, (0.0, 0.0, 0.05))) for _ in range(2)]
-    assert _base_model([light, *heavy]) is heavy[0].model
-    assert _base_model([light, heavy[0]]) is light.model
+    robots = [light, *heavy]
+    assert _base_model(robots, _model_keys(robots)) is heavy[0].model
+    assert _base_model(robots[:2], _model_keys(robots[:2])) is light.model
 
 
 def test_a_robots_cached_model_key_is_its_models() -> None:
@@ -195,13 +197,14 @@ def test_a_model_with_min_lanes_runs_keeps_its_own_batch_and_the_rest_are_pooled
     ]
     problems = [scenario.problem] * MIN_LANES + others
     reasons: list[str | None] = [None] * len(problems)
-    groups = _groups(problems, [scenario.integrator] * len(problems), reasons, min_lanes=1)
+    keys = _model_keys([problem.robot for problem in problems])
+    groups = _groups(problems, [scenario.integrator] * len(problems), reasons, 1, keys)
     assert sorted(groups.values()) == [
         list(range(MIN_LANES)),
         list(range(MIN_LANES, MIN_LANES + 3)),
     ]
     assert reasons == [None] * len(problems)
-    _groups(problems, [scenario.integrator] * len(problems), reasons, min_lanes=4)
+    _groups(problems, [scenario.integrator] * len(problems), reasons, 4, keys)
     assert reasons[-3:] == [FEW_LANES.format(min_lanes=4)] * 3 and reasons[0] is None
 
 

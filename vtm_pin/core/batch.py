@@ -269,9 +269,11 @@ class _Dynamics:
             self.chain = joint_chain(model)
         self.compiled = chain_dynamics.runs() and self.chain is not None
         some = [model, *(models if models is not None and self.joints else ())]
-        self.parameters = np.array(
-            [[inertia.toDynamicParameters() for inertia in m.inertias] for m in some]
-        )
+        each: dict[int, np.ndarray] = {}  # by model: a study's lanes share one per payload
+        for m in some:
+            if id(m) not in each:
+                each[id(m)] = np.array([inertia.toDynamicParameters() for inertia in m.inertias])
+        self.parameters = np.array([each[id(m)] for m in some])
         self.armature = np.array(model.armature)
         #: Batched Pinocchio calls made, and the states they evaluated; the states the
         #: compiled kernel evaluated.
@@ -282,7 +284,11 @@ class _Dynamics:
     def _inertias(self, model: pin.Model, models: Sequence[pin.Model]) -> None:
         """The lanes' inertia differences from ``model`` (see the class docstring)."""
         base = np.array([inertia.matrix() for inertia in model.inertias])
-        delta = np.array([[inertia.matrix() for inertia in m.inertias] for m in models]) - base
+        each: dict[int, np.ndarray] = {}  # by model: a study's lanes share one per payload
+        for m in models:
+            if id(m) not in each:
+                each[id(m)] = np.array([inertia.matrix() for inertia in m.inertias]) - base
+        delta = np.array([each[id(m)] for m in models])
         differs = np.flatnonzero(delta.any(axis=(0, 2, 3)))
         if differs.size == 0:
             return
@@ -1488,7 +1494,8 @@ def run_many(
         "engine scalar chosen" if engine == "scalar" else fallback_reason(p, i)
         for p, i in zip(problems, integrators, strict=True)
     ]
-    groups = _groups(problems, integrators, reasons, min_lanes)
+    keys = _model_keys([problem.robot for problem in problems])
+    groups = _groups(problems, integrators, reasons, min_lanes, keys)
     for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
         if reason is None:
             continue
@@ -1507,7 +1514,8 @@ def run_many(
         ]
         robots = [problems[i].robot for i in indices]
         models = [robot.model for robot in robots]
-        batch = BatchEngine(_base_model(robots), integrator, threads, models, holding)  # type: ignore[arg-type]
+        base = _base_model(robots, [keys[i] for i in indices])
+        batch = BatchEngine(base, integrator, threads, models, holding)  # type: ignore[arg-type]
         clock = _Clock(batch, started)
         _run_batch(batch, runs, problems, reasons, on_done, clock)
         parts = clock.parts_now()
@@ -1541,11 +1549,27 @@ def run_many(
     )
 
 
+def _model_keys(robots: Sequence[Robot]) -> list[bytes]:
+    """:func:`robot_model_key` of each robot, formed once per robot object.
+
+    (A study's cases share one robot per payload.)
+    """
+    known: dict[int, bytes] = {}
+    out = []
+    for robot in robots:
+        key = known.get(id(robot))
+        if key is None:
+            key = known[id(robot)] = robot_model_key(robot)
+        out.append(key)
+    return out
+
+
 def _groups(
     problems: Sequence[Problem],
     integrators: Sequence[object],
     reasons: list[str | None],
     min_lanes: int,
+    keys: Sequence[bytes],
 ) -> dict[tuple[bytes, object], list[int]]:
     """The batches: indices of runs of one integrator, at least ``min_lanes``.
 
@@ -1553,13 +1577,13 @@ def _groups(
     its lanes cost least, ABA where nothing is locked); the runs of the other models are pooled
     by :func:`batch_key` (their lanes carry their own inertias, which costs more per lane
     than a batch of their own model but less than the scalar engine). The runs of smaller
-    groups are given the reason :data:`FEW_LANES` (in ``reasons``).
+    groups are given the reason :data:`FEW_LANES` (in ``reasons``). ``keys``: the problems'
+    robots' :func:`robot_model_key`.
     """
     exact: dict[tuple[bytes, object], list[int]] = {}
-    for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
+    for index, reason in enumerate(reasons):
         if reason is None:
-            model = robot_model_key(problem.robot)
-            exact.setdefault((model, integrators[index]), []).append(index)
+            exact.setdefault((keys[index], integrators[index]), []).append(index)
     groups: dict[tuple[bytes, object], list[int]] = {}
     for (model, integrator), indices in exact.items():
         if len(indices) >= MIN_LANES:
@@ -1576,12 +1600,12 @@ def _groups(
     return groups
 
 
-def _base_model(robots: Sequence[Robot]) -> pin.Model:
+def _base_model(robots: Sequence[Robot], keys: Sequence[bytes]) -> pin.Model:
     """The batch's model: the one most of its runs' robots have (they cost nothing more).
 
-    In a tie, the first of those models in the order of the runs.
+    In a tie, the first of those models in the order of the runs. ``keys``: the robots'
+    :func:`robot_model_key`.
     """
-    keys = [robot_model_key(robot) for robot in robots]
     counts = collections.Counter(keys)
     return robots[keys.index(max(counts, key=counts.__getitem__))].model
 
