@@ -172,8 +172,9 @@ def test_a_batchs_model_is_the_one_most_of_its_runs_have() -> None:
     light = attach_payload(robot, Payload(1.0, (0.0, 0.0, 0.05)))
     heavy = [attach_payload(robot, Payload(8.0, (0.0, 0.0, 0.05))) for _ in range(2)]
     robots = [light, *heavy]
-    assert _base_model(robots, _model_keys(robots)) is heavy[0].model
-    assert _base_model(robots[:2], _model_keys(robots[:2])) is light.model
+    keys = [robot_model_key(robot) for robot in robots]
+    assert _base_model(robots, keys) is heavy[0].model
+    assert _base_model(robots[:2], keys[:2]) is light.model
 
 
 def test_a_robots_cached_model_key_is_its_models() -> None:
@@ -197,7 +198,8 @@ def test_a_model_with_min_lanes_runs_keeps_its_own_batch_and_the_rest_are_pooled
     ]
     problems = [scenario.problem] * MIN_LANES + others
     reasons: list[str | None] = [None] * len(problems)
-    keys = _model_keys([problem.robot for problem in problems])
+    keys = _model_keys(problems, reasons)
+    assert keys[MIN_LANES:] == [robot_model_key(p.robot) for p in others]
     groups = _groups(problems, [scenario.integrator] * len(problems), reasons, 1, keys)
     assert sorted(groups.values()) == [
         list(range(MIN_LANES)),

@@ -1494,7 +1494,7 @@ def run_many(
         "engine scalar chosen" if engine == "scalar" else fallback_reason(p, i)
         for p, i in zip(problems, integrators, strict=True)
     ]
-    keys = _model_keys([problem.robot for problem in problems])
+    keys = _model_keys(problems, reasons)
     groups = _groups(problems, integrators, reasons, min_lanes, keys)
     for index, (problem, reason) in enumerate(zip(problems, reasons, strict=True)):
         if reason is None:
@@ -1549,17 +1549,18 @@ def run_many(
     )
 
 
-def _model_keys(robots: Sequence[Robot]) -> list[bytes]:
-    """:func:`robot_model_key` of each robot, formed once per robot object.
+def _model_keys(problems: Sequence[Problem], reasons: Sequence[str | None]) -> list[bytes]:
+    """:func:`robot_model_key` of each run's robot, once per robot object.
 
-    (A study's cases share one robot per payload.)
+    A study's cases share one robot per payload. b"" for the runs that go to the scalar
+    engine (those with a ``reason``).
     """
     known: dict[int, bytes] = {}
     out = []
-    for robot in robots:
-        key = known.get(id(robot))
+    for problem, reason in zip(problems, reasons, strict=True):
+        key = b"" if reason is not None else known.get(id(problem.robot))
         if key is None:
-            key = known[id(robot)] = robot_model_key(robot)
+            key = known[id(problem.robot)] = robot_model_key(problem.robot)
         out.append(key)
     return out
 
