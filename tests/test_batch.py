@@ -514,6 +514,35 @@ def test_the_lane_by_lane_work_is_counted_as_the_scalar_loop_does_it() -> None:
     assert requests - counts["settled_rests"] <= counts["resumptions"] < requests
 
 
+def test_a_frozen_interval_is_integrated_without_building_its_state_events() -> None:
+    """Every study case ends in an interval with every joint locked (an empty state). Its
+    request is answered without its phase's state events (the stuck joints' slip events,
+    which no integrator here watches in a frozen state), and the segment is the one the
+    integrator gives with them: the same times and states, exactly."""
+    raw = yaml.safe_load((SCENARIOS_DIR / "ur10_annex_b.yaml").read_text())
+    scenario = vp.build_scenario(raw, source="test", base_dir=SCENARIOS_DIR, name="frozen")
+    loop = hybrid_run(scenario.problem, scenario.integrator)
+    request, frozen = next(loop), 0
+    while True:
+        segment = request.integrate()
+        if request.y0.size == 0:
+            frozen += 1
+            assert "events" not in vars(request.phase)  # not built
+            events = [e.event for e in request.phase.events]
+            assert events  # the stuck joints' slip events exist, and are not needed
+            again = request.integrator.integrate(
+                request.rhs, request.t0, request.y0, request.t1, events, n_q=request.phase.k
+            )
+            np.testing.assert_array_equal(segment.t, again.t)
+            np.testing.assert_array_equal(segment.y, again.y)
+            assert segment.event is again.event is None
+        try:
+            request = loop.send(segment)
+        except StopIteration:
+            break
+    assert frozen == 1
+
+
 def test_a_finished_batch_is_freed_without_the_cycle_collector() -> None:
     """A batch's engine and its clock referred to each other, so every batch (its runs, and
     the study's scenarios and results its callback held) waited for the collector's oldest

@@ -88,11 +88,12 @@ class _Hybrid:
         self.data = full_data(robot)
         self.events: list[EventRecord] = []
         self._labels = tuple(RowLabel(RowKind.JOINT, name) for name in robot.joints)
-        self._phase: Phase | None = self.new_phase()
+        #: Built when first asked for (a stop's events at t = 0 replace it before that).
+        self._phase: Phase | None = None
 
     @property
     def phase(self) -> Phase:
-        """The current phase, built when first asked for after :meth:`stick_rested`."""
+        """The current phase, built when first asked for (at the start, after a rested stick)."""
         if self._phase is None:
             self._phase = self.new_phase()
         return self._phase
@@ -350,14 +351,15 @@ class SegmentRequest:
     integrator: Integrator
 
     def integrate(self) -> Segment:
-        """The interval integrated by the scalar integrator."""
+        """The interval integrated by the scalar integrator.
+
+        A frozen state (``y0`` empty: every joint locked, nothing accumulating) is given no
+        state events, which the phase would otherwise build only to be left unwatched
+        (:class:`~vtm_pin.numerics.integrators.base.Integrator`); it ends every study case.
+        """
+        events = [e.event for e in self.phase.events] if self.y0.size else []
         return self.integrator.integrate(
-            self.rhs,
-            self.t0,
-            self.y0,
-            self.t1,
-            [e.event for e in self.phase.events],
-            n_q=self.phase.k,
+            self.rhs, self.t0, self.y0, self.t1, events, n_q=self.phase.k
         )
 
 

@@ -125,6 +125,8 @@ class Integrator(Protocol):
         """Integrate from ``t0`` to exactly ``t1`` [s], or to the first state event before it.
 
         ``n_q`` tells second-order-aware methods that y[:n_q] are positions whose rates are
-        y[n_q:2 n_q]; the others ignore it.
+        y[n_q:2 n_q]; the others ignore it. An empty ``y0`` is a frozen state (every joint
+        locked): nothing moves, the integrators here watch no event there, and the hybrid loop
+        passes none.
         """
         ...
