@@ -480,6 +480,12 @@ class _Lanes:
         self.accepted = np.zeros(b, dtype=int)
         self.evals = np.zeros(b, dtype=int)
         self.running = np.zeros(b, dtype=bool)
+        #: Whether the lane holds its run's constants (gear ratios, brake friction): written
+        #: at the run's first interval, the same in every phase (a lane is one run's).
+        self.constants = np.zeros(b, dtype=bool)
+        #: The run's next output time [s] (inf: none) and its grid's last (:class:`_Grid`).
+        self.next_out = np.full(b, math.inf)
+        self.out_end = np.full(b, -math.inf)
 
 
 class _Run:
@@ -682,32 +688,41 @@ class BatchEngine:
         lanes.active[b, run.reduced] = True
         lanes.count[b] = run.reduced.size
         lanes.steps[b] = lanes.accepted[b] = 0
+        if not lanes.constants[b]:
+            self._load_constants(lanes, b, phase)
+            lanes.constants[b] = True
         self._load_brakes(lanes, b, phase)
         lanes.running[b] = True
         run.output_dt = request.integrator.output_dt  # type: ignore[attr-defined]
-        run.grid = None if run.output_dt is None else _Grid(run.output_dt, request.t0, request.t1)
+        _start_grid(lanes, b, run, request.t0, request.t1)
         run.ts, run.ys, run.holds = [], [], []
 
-    def _load_brakes(self, lanes: _Lanes, b: int, phase: object) -> None:
-        """Sliding signs, torques, ramps and the state events of run ``b``'s phase."""
-        lanes.sign[b] = 0.0
-        lanes.event_kind[b] = 0
-        lanes.short_torque[b], lanes.short_speed[b] = phase.shorted()  # type: ignore[attr-defined]
+    @staticmethod
+    def _load_constants(lanes: _Lanes, b: int, phase: object) -> None:
+        """Gear ratios and brake friction constants of run ``b`` (its lane is its own)."""
         lanes.ratio[b] = phase.robot.gear_ratio  # type: ignore[attr-defined]
         machine = phase.machine  # type: ignore[attr-defined]
-        if machine is None:
-            return
-        modes, engaged = phase.modes, phase.engaged  # type: ignore[attr-defined]
-        lanes.braked[b] = False
-        for j, brake in machine.brakes.items():
-            lanes.engaged[b, j] = engaged.get(j, 0.0)
-            lanes.braked[b, j] = j in engaged
+        for j, brake in machine.brakes.items() if machine is not None else ():
             if not brake.ideal:
                 friction = brake.friction
                 lanes.torque[b, j] = friction.sliding_torque
                 lanes.breakaway[b, j] = friction.breakaway_torque
                 lanes.ramp[b, j] = friction.ramp
                 lanes.viscous[b, j] = 1.0 / getattr(friction, "viscous_velocity", math.inf)
+
+    def _load_brakes(self, lanes: _Lanes, b: int, phase: object) -> None:
+        """Sliding signs, engagement times and the state events of run ``b``'s phase."""
+        lanes.sign[b] = 0.0
+        lanes.event_kind[b] = 0
+        lanes.short_torque[b], lanes.short_speed[b] = phase.shorted()  # type: ignore[attr-defined]
+        machine = phase.machine  # type: ignore[attr-defined]
+        if machine is None:
+            return
+        modes, engaged = phase.modes, phase.engaged  # type: ignore[attr-defined]
+        lanes.braked[b] = False
+        for j in machine.brakes:
+            lanes.engaged[b, j] = engaged.get(j, 0.0)
+            lanes.braked[b, j] = j in engaged
             if modes[j].sliding and not lanes.locked[b, j]:
                 lanes.sign[b, j] = modes[j].sign
         for index, (kind, j, direction) in enumerate(phase.event_specs):  # type: ignore[attr-defined]
@@ -855,13 +870,8 @@ class BatchEngine:
             b = int(rows[i])
             self._own_margins(lanes, runs[b], b, t_new[i], step.y_new[i], g_new[i], fired[i])
         events: np.ndarray = np.asarray(fired.any(axis=1))
-        due = np.array(
-            [
-                not event and _due(runs[b].grid, tn)
-                for b, tn, event in zip(rows, t_new, events.tolist(), strict=True)
-            ],
-            dtype=bool,
-        )
+        # An output time falls in the step (as _Grid.due, across the lanes).
+        due = ~events & (lanes.next_out[rows] <= np.minimum(t_new, lanes.out_end[rows]))
         going: set[int] = set()  # lanes that settled their rest and go on
         if events.any() or due.any():
             going = self._dense_samples(lanes, runs, rows, step, t_new, fired, events | due)
@@ -877,7 +887,7 @@ class BatchEngine:
         lanes.t[rows], lanes.y[rows], lanes.fy[rows] = t_new, step.y_new, step.K[:, dp.S]
         lanes.lam[rows] = lam_new[go]
         lanes.h[rows] = step.h * factor
-        gridless = np.array([runs[b].grid is None for b in rows], dtype=bool)
+        gridless = lanes.out_end[rows] == -math.inf
         for i in np.flatnonzero(step.last | gridless):
             b = int(rows[i])
             run = runs[b]
@@ -933,14 +943,14 @@ class BatchEngine:
                     self.advance(run, error=_as_vtm_error(exc))
                     continue
                 until = t + tau - (run.grid.slack if run.grid is not None else 0.0)
-                count = _grid_times(run.grid, until, times)
+                count = _grid_times(lanes, int(b), run.grid, until, times)
                 times.append(t + tau)
                 owners.extend([i] * (count + 1))
                 ends[int(b)] = index
                 if i in rests:
                     rested[int(b)] = index
             else:
-                owners.extend([i] * _grid_times(run.grid, float(t_new[i]), times))
+                owners.extend([i] * _grid_times(lanes, int(b), run.grid, float(t_new[i]), times))
         if owners:
             self._store_samples(lanes, runs, sub, part, F, np.array(owners, dtype=int), times)
         for b, event in ends.items():
@@ -1039,8 +1049,7 @@ class BatchEngine:
         begin = time.perf_counter()
         for b in rows:
             run = runs[b]
-            t0 = float(lanes.t[b])
-            run.grid = None if run.output_dt is None else _Grid(run.output_dt, t0, lanes.t1[b])
+            _start_grid(lanes, b, run, float(lanes.t[b]), float(lanes.t1[b]))
             run.sample(lanes, b)
         self.seconds["lanes"] += time.perf_counter() - begin
 
@@ -1062,15 +1071,14 @@ class BatchEngine:
             _, lam = self.rhs(lanes, sub[owner], when, y)
         else:  # no right-hand side for the samples: nobody reads their holding torques
             lam = np.full((len(when), self.n), np.nan)
-        split = np.flatnonzero(np.diff(owner)) + 1
-        starts = np.concatenate([[0], split]).astype(int)
-        for t_part, y_part, l_part, first in zip(
-            np.split(when, split), np.split(y, split), np.split(lam, split), starts, strict=True
-        ):
-            run = runs[int(sub[owner[first]])]
-            run.ts.append(t_part)
-            run.ys.append(y_part)
-            run.holds.append(l_part)
+        # Each lane's samples are consecutive: one slice (a view) of each per lane.
+        bounds = (np.flatnonzero(np.diff(owner)) + 1).tolist()
+        starts, ends = [0, *bounds], [*bounds, len(when)]
+        for b, first, end in zip(sub[owner[starts]].tolist(), starts, ends, strict=True):
+            run = runs[b]
+            run.ts.append(when[first:end])
+            run.ys.append(y[first:end])
+            run.holds.append(lam[first:end])
 
     def _own_margins(
         self,
@@ -1738,13 +1746,15 @@ def _as_vtm_error(exc: Exception) -> VtmError:
     return SimulationError(f"internal error ({type(exc).__name__}: {exc})")
 
 
-def _due(grid: _Grid | None, t_new: float) -> bool:
-    """Whether an output time falls in a step ending at ``t_new`` [s]."""
-    return grid is not None and grid.due(t_new)
+def _start_grid(lanes: _Lanes, b: int, run: _Run, t0: float, t1: float) -> None:
+    """Run ``b``'s output times in its interval [t0, t1] [s], noted in its lane."""
+    grid = run.grid = None if run.output_dt is None else _Grid(run.output_dt, t0, t1)
+    lanes.next_out[b] = math.inf if grid is None else grid.k * grid.dt
+    lanes.out_end[b] = -math.inf if grid is None else grid.end
 
 
-def _grid_times(grid: _Grid | None, until: float, times: list[float]) -> int:
-    """Append the grid's output times up to ``until`` [s] (and its end); how many."""
+def _grid_times(lanes: _Lanes, b: int, grid: _Grid | None, until: float, times: list[float]) -> int:
+    """Append lane ``b``'s output times up to ``until`` [s] (and its end); how many."""
     if grid is None:
         return 0
     limit = min(until, grid.end)
@@ -1753,4 +1763,5 @@ def _grid_times(grid: _Grid | None, until: float, times: list[float]) -> int:
         times.append(when)
         grid.k += 1
         count += 1
+    lanes.next_out[b] = when
     return count
