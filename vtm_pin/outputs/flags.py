@@ -289,6 +289,15 @@ def slip_flag(result: SimulationResult, tested: str | None) -> Flag | None:
     )
 
 
+def _arm_mass(robot: Robot, payload: Payload) -> float:
+    """The arm's mass without the payload [kg]: its bodies', the fixed base's included.
+
+    Summed over the model's inertias only where it is compared (no rated payload): ~10 us a
+    case.
+    """
+    return float(sum(inertia.mass for inertia in robot.model.inertias)) - payload.mass
+
+
 def payload_flags(robot: Robot, payload: Payload | None) -> list[Flag]:
     """``payload_above_rated`` and ``payload_implausible`` of a case's payload."""
     if payload is None:
@@ -305,8 +314,8 @@ def payload_flags(robot: Robot, payload: Payload | None) -> list[Flag]:
                 limit=rated,
             )
         )
-    arm_mass = float(sum(inertia.mass for inertia in robot.model.inertias)) - payload.mass
-    if rated is None and payload.mass > arm_mass:
+    arm_mass = _arm_mass(robot, payload) if rated is None else math.inf
+    if payload.mass > arm_mass:
         flags.append(
             Flag(
                 "payload_implausible",
