@@ -108,33 +108,42 @@ def locked_dynamics(
 
 
 def _world_inertia(
-    theta: np.ndarray,
-    R: np.ndarray,
-    p: np.ndarray,
-    h: np.ndarray,
-    inertia: np.ndarray,
-    work: np.ndarray,
+    theta: np.ndarray, R: np.ndarray, p: np.ndarray, h: np.ndarray, inertia: np.ndarray
 ) -> float:
-    """A body's first moment h [kg m] and inertia [kg m^2] about the world's origin; its mass."""
+    """A body's first moment h [kg m] and inertia [kg m^2] about the world's origin; its mass.
+
+    R I_o R^T - [R h]x [p]x - [p]x [R h]x - m [p]x^2, written out in scalars (as
+    :func:`~vtm_pin.physics.body_kernel._place`), each sum in its matrix product's order.
+    """
     m = theta[0]
-    local, turned, rh = work[:3], work[3:6], work[6]
-    local[0, 0], local[0, 1], local[1, 1] = theta[4], theta[5], theta[6]
-    local[0, 2], local[1, 2], local[2, 2] = theta[7], theta[8], theta[9]
-    local[1, 0], local[2, 0], local[2, 1] = theta[5], theta[7], theta[8]
-    for r in range(3):
-        rh[r] = R[r, 0] * theta[1] + R[r, 1] * theta[2] + R[r, 2] * theta[3]
-        h[r] = rh[r] + m * p[r]
-        for c in range(3):  # (R I_o) row r
-            turned[r, c] = R[r, 0] * local[0, c] + R[r, 1] * local[1, c] + R[r, 2] * local[2, c]
-    ph = p[0] * rh[0] + p[1] * rh[1] + p[2] * rh[2]
-    pp = p[0] * p[0] + p[1] * p[1] + p[2] * p[2]
-    for r in range(3):  # R I_o R^T - [rh]x [p]x - [p]x [rh]x - m [p]x^2, written out
-        for c in range(3):
-            shift = -(rh[c] * p[r] + p[c] * rh[r]) - m * p[r] * p[c]
-            if r == c:
-                shift += 2.0 * ph + m * pp
-            rotated = turned[r, 0] * R[c, 0] + turned[r, 1] * R[c, 1] + turned[r, 2] * R[c, 2]
-            inertia[r, c] = rotated + shift
+    i00, i01, i11, i02, i12, i22 = theta[4], theta[5], theta[6], theta[7], theta[8], theta[9]
+    r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
+    r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
+    r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
+    px, py, pz = p[0], p[1], p[2]
+    rh0 = r00 * theta[1] + r01 * theta[2] + r02 * theta[3]  # R h
+    rh1 = r10 * theta[1] + r11 * theta[2] + r12 * theta[3]
+    rh2 = r20 * theta[1] + r21 * theta[2] + r22 * theta[3]
+    h[0], h[1], h[2] = rh0 + m * px, rh1 + m * py, rh2 + m * pz
+    t00 = r00 * i00 + r01 * i01 + r02 * i02  # T = R I_o
+    t01 = r00 * i01 + r01 * i11 + r02 * i12
+    t02 = r00 * i02 + r01 * i12 + r02 * i22
+    t10 = r10 * i00 + r11 * i01 + r12 * i02
+    t11 = r10 * i01 + r11 * i11 + r12 * i12
+    t12 = r10 * i02 + r11 * i12 + r12 * i22
+    t20 = r20 * i00 + r21 * i01 + r22 * i02
+    t21 = r20 * i01 + r21 * i11 + r22 * i12
+    t22 = r20 * i02 + r21 * i12 + r22 * i22
+    d = 2.0 * (px * rh0 + py * rh1 + pz * rh2) + m * (px * px + py * py + pz * pz)
+    inertia[0, 0] = (t00 * r00 + t01 * r01 + t02 * r02) + (-(rh0 * px + px * rh0) - m * px * px + d)
+    inertia[0, 1] = (t00 * r10 + t01 * r11 + t02 * r12) + (-(rh1 * px + py * rh0) - m * px * py)
+    inertia[0, 2] = (t00 * r20 + t01 * r21 + t02 * r22) + (-(rh2 * px + pz * rh0) - m * px * pz)
+    inertia[1, 0] = (t10 * r00 + t11 * r01 + t12 * r02) + (-(rh0 * py + px * rh1) - m * py * px)
+    inertia[1, 1] = (t10 * r10 + t11 * r11 + t12 * r12) + (-(rh1 * py + py * rh1) - m * py * py + d)
+    inertia[1, 2] = (t10 * r20 + t11 * r21 + t12 * r22) + (-(rh2 * py + pz * rh1) - m * py * pz)
+    inertia[2, 0] = (t20 * r00 + t21 * r01 + t22 * r02) + (-(rh0 * pz + px * rh2) - m * pz * px)
+    inertia[2, 1] = (t20 * r10 + t21 * r11 + t22 * r12) + (-(rh1 * pz + py * rh2) - m * pz * py)
+    inertia[2, 2] = (t20 * r20 + t21 * r21 + t22 * r22) + (-(rh2 * pz + pz * rh2) - m * pz * pz + d)
     return m
 
 
@@ -146,15 +155,14 @@ def _apply(
     m: float, h: np.ndarray, inertia: np.ndarray, motion: np.ndarray, out: np.ndarray
 ) -> None:
     """The force (m v - h x w, h x v + I w) of inertia (m, h, I) on the motion (v, w)."""
-    v, w = motion[:3], motion[3:]
-    out[0] = m * v[0] - (h[1] * w[2] - h[2] * w[1])
-    out[1] = m * v[1] - (h[2] * w[0] - h[0] * w[2])
-    out[2] = m * v[2] - (h[0] * w[1] - h[1] * w[0])
-    out[3] = h[1] * v[2] - h[2] * v[1]
-    out[4] = h[2] * v[0] - h[0] * v[2]
-    out[5] = h[0] * v[1] - h[1] * v[0]
-    for r in range(3):
-        out[3 + r] += inertia[r, 0] * w[0] + inertia[r, 1] * w[1] + inertia[r, 2] * w[2]
+    v0, v1, v2, w0, w1, w2 = motion[0], motion[1], motion[2], motion[3], motion[4], motion[5]
+    h0, h1, h2 = h[0], h[1], h[2]
+    out[0] = m * v0 - (h1 * w2 - h2 * w1)
+    out[1] = m * v1 - (h2 * w0 - h0 * w2)
+    out[2] = m * v2 - (h0 * w1 - h1 * w0)
+    out[3] = (h1 * v2 - h2 * v1) + (inertia[0, 0] * w0 + inertia[0, 1] * w1 + inertia[0, 2] * w2)
+    out[4] = (h2 * v0 - h0 * v2) + (inertia[1, 0] * w0 + inertia[1, 1] * w1 + inertia[1, 2] * w2)
+    out[5] = (h0 * v1 - h1 * v0) + (inertia[2, 0] * w0 + inertia[2, 1] * w1 + inertia[2, 2] * w2)
 
 
 def _force(
@@ -169,14 +177,14 @@ def _force(
     """A body's force I C + V x* (I V): (w x f, w x n + v x f) for the momentum (f, n) = I V."""
     _apply(m, h, inertia, C, out)
     _apply(m, h, inertia, V, work)
-    v, w = V[:3], V[3:]
-    f, n = work[:3], work[3:]
-    out[0] += w[1] * f[2] - w[2] * f[1]
-    out[1] += w[2] * f[0] - w[0] * f[2]
-    out[2] += w[0] * f[1] - w[1] * f[0]
-    out[3] += w[1] * n[2] - w[2] * n[1] + v[1] * f[2] - v[2] * f[1]
-    out[4] += w[2] * n[0] - w[0] * n[2] + v[2] * f[0] - v[0] * f[2]
-    out[5] += w[0] * n[1] - w[1] * n[0] + v[0] * f[1] - v[1] * f[0]
+    v0, v1, v2, w0, w1, w2 = V[0], V[1], V[2], V[3], V[4], V[5]
+    f0, f1, f2, n0, n1, n2 = work[0], work[1], work[2], work[3], work[4], work[5]
+    out[0] += w1 * f2 - w2 * f1
+    out[1] += w2 * f0 - w0 * f2
+    out[2] += w0 * f1 - w1 * f0
+    out[3] += w1 * n2 - w2 * n1 + v1 * f2 - v2 * f1
+    out[4] += w2 * n0 - w0 * n2 + v2 * f0 - v0 * f2
+    out[5] += w0 * n1 - w1 * n0 + v0 * f1 - v1 * f0
 
 
 def _cholesky(M: np.ndarray, free: np.ndarray, k: int, L: np.ndarray) -> None:
@@ -304,13 +312,10 @@ def _kernel(
     count, nv = parents.size, vs.shape[1]
     R, p = np.zeros((count, 3, 3)), np.zeros((count, 3))
     S, V, C = np.zeros((count, 6)), np.zeros((count, 6)), np.zeros((count, 6))
-    place, move = np.empty((5, 3)), np.empty((3, 6))
-    mass, h, inertia = np.zeros(count), np.zeros((count, 3)), np.zeros((count, 3, 3))
     cm, ch, ci = np.zeros(count), np.zeros((count, 3)), np.zeros((count, 3, 3))
     F, G, work = np.zeros((count, 6)), np.empty(6), np.empty(6)
     M, b = np.zeros((nv, nv)), np.zeros(nv)
     L, free, x = np.zeros((nv, nv)), np.zeros(nv, dtype=np.int64), np.zeros(nv)
-    turn = np.empty((7, 3))
     for i in range(3):
         R[0, i, i] = 1.0
     for s in range(qs.shape[0]):
@@ -321,15 +326,11 @@ def _kernel(
             parent = parents[j]
             angle, rate = qs[s, index[j]], vs[s, index[j]]
             turns = revolute[j]
-            _place(j, parent, rotations[j], translations[j], axes[j], turns, angle, R, p, S, place)
-            _move(j, parent, rate, S, V, C, move)
-            mass[j] = _world_inertia(theta[j], R[j], p[j], h[j], inertia[j], turn)
-            _force(mass[j], h[j], inertia[j], V[j], C[j], F[j], work)
-            cm[j] = mass[j]
-            for r in range(3):  # element by element: no temporary arrays
-                ch[j, r] = h[j, r]
-                for c in range(3):
-                    ci[j, r, c] = inertia[j, r, c]
+            _place(j, parent, rotations[j], translations[j], axes[j], turns, angle, R, p, S)
+            _move(j, parent, rate, S, V, C)
+            # the body's own inertia, summed over its subtree below (parents before children)
+            cm[j] = _world_inertia(theta[j], R[j], p[j], ch[j], ci[j])
+            _force(cm[j], ch[j], ci[j], V[j], C[j], F[j], work)
         _subtrees(parents, index, S, F, cm, ch, ci, b)
         _mass_matrix(parents, index, S, cm, ch, ci, armature, M, G)
         _solve(M, b, taus[s], locked[s], a[s], lam[s], L, free, x)
