@@ -28,11 +28,13 @@ where a subtree's spatial inertia is the plain sum of its bodies':
   positive gives NaN accelerations for that state alone, as a singular LAPACK solve does).
 
 Exact up to round-off: agrees with Pinocchio's RNEA and CRBA to ~1e-15 relative
-(``tests/test_chain_dynamics.py``). Without Numba, or with ``NUMBA_DISABLE_JIT=1``
-(:data:`AVAILABLE` False), the batched engine keeps its NumPy path; so it does, after one
-warning, if Numba is installed but cannot import or compile here
-(:func:`~vtm_pin.physics.body_kernel.fall_back`). The first call of a
-process compiles the kernel (~9 s) unless Numba's cache beside this file holds it. Numba
+(``tests/test_chain_dynamics.py``). The per-body steps are written out in scalars, not as
+products of small work arrays, whose views Numba keeps in memory: ~1.0-1.1 us a UR10 state
+with locks against 1.7-1.9 us before (issue 27, one process; the same numbers, bit for bit).
+Without Numba, or with ``NUMBA_DISABLE_JIT=1`` (:data:`AVAILABLE` False), the batched engine
+keeps its NumPy path; so it does, after one warning, if Numba is installed but cannot import
+or compile here (:func:`~vtm_pin.physics.body_kernel.fall_back`). The first call of a process
+compiles the kernel (~9 s) unless Numba's cache beside this file holds it. Numba
 checks only this file for changes: body_kernel's placement and motion helpers are compiled
 into the cached kernel, so after editing them alone, delete ``__pycache__/chain_dynamics*.nb*``
 (a new install replaces both files and so renews the cache).
