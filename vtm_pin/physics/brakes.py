@@ -83,8 +83,8 @@ class BrakeMode(IntEnum):
     STUCK = 3
     LOCKED = 4  # ideal lock: a prescribed lock or an ideal brake
 
-    # Both read the mode as the int it is: Enum's ``value`` is a descriptor, ~10x slower, and
-    # these are asked for dozens of times a study case.
+    # Both read the mode as the int it is, not through Enum's ``value`` descriptor (~300 against
+    # 70-85 ns a call, measured): they are asked for dozens of times a study case.
 
     @property
     def sliding(self) -> bool:
