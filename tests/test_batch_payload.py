@@ -16,6 +16,7 @@ import yaml
 from conftest import KERNEL_PATHS
 
 import vtm_pin as vp
+from vtm_pin.core import batch as batch_module
 from vtm_pin.core.batch import (
     FEW_LANES,
     MIN_LANES,
@@ -25,6 +26,7 @@ from vtm_pin.core.batch import (
     _model_keys,
     batch_key,
     model_key,
+    robot_batch_key,
     robot_model_key,
     run_many,
 )
@@ -185,6 +187,24 @@ def test_a_robots_cached_model_key_is_its_models() -> None:
     assert robot_model_key(loaded) == model_key(loaded.model)
     assert robot_model_key(robot) == model_key(robot.model)
     assert robot_model_key(loaded) != robot_model_key(robot)
+
+
+def test_a_robots_batch_key_from_its_cache_is_its_models(monkeypatch: pytest.MonkeyPatch) -> None:
+    """:func:`robot_batch_key` (the chain and the key's fixed part from the robot's cache,
+    shared with its payload copies) is :func:`batch_key` of its model: for the base robot,
+    for payload copies made before and after the shared part is filled, and for a model whose
+    joints the NumPy chain does not take (its key is then the whole model's)."""
+    robot = vp.load_robot("ur10")
+    first = attach_payload(robot, Payload(3.0, (0.0, 0.01, 0.05)))
+    assert robot_batch_key(first) == batch_key(first.model)
+    later = attach_payload(robot, Payload(7.0, (0.02, 0.0, 0.05)))
+    assert robot_batch_key(later) == batch_key(later.model) == batch_key(robot.model)
+    assert robot_batch_key(robot) == batch_key(robot.model)
+    assert robot_model_key(later) != robot_model_key(first)
+    monkeypatch.setattr(batch_module, "joint_chain", lambda model: None)
+    monkeypatch.setattr(batch_module, "cached_chain", lambda robot: None)
+    assert robot_batch_key(first) == batch_key(first.model) == b"model " + model_key(first.model)
+    assert robot_batch_key(first) != robot_batch_key(later)
 
 
 def test_a_model_with_min_lanes_runs_keeps_its_own_batch_and_the_rest_are_pooled() -> None:

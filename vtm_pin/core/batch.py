@@ -93,7 +93,7 @@ from ..physics import body_kernel, chain_dynamics
 from ..physics.brakes import REST_RATE, ROUNDOFF, BrakeMode, StateEventKind
 from ..physics.drives import short_circuit_torque
 from ..physics.friction import Coulomb, Viscous
-from ..physics.kinematics import JointChain, body_motions, cross, joint_chain
+from ..physics.kinematics import JointChain, body_motions, cached_chain, cross, joint_chain
 from ..physics.robot import Robot
 from .phase import WORKS
 from .problem import Problem
@@ -181,8 +181,25 @@ def robot_model_key(robot: Robot) -> bytes:
     That part is the same for the robot's payload copies (a kinematic entry), and costs
     ~0.1 ms to form; the inertias' part, ~10 us, is formed per call.
     """
-    fixed = robot.cache.get("batch_fixed_key", lambda: _fixed_key(robot.model), kinematic=True)
-    return fixed + _inertias_key(robot.model)
+    return _robot_fixed_key(robot) + _inertias_key(robot.model)
+
+
+def robot_batch_key(robot: Robot) -> bytes:
+    """:func:`batch_key` of the robot's model, from the entries its payload copies share.
+
+    Its joint chain and the key's part without inertias are kinematic entries of the robot's
+    cache: a payload drawn per case forms neither again (measured, issue 27: ~0.1 ms a
+    drawn-payload case, when each was formed from the model).
+    """
+    if cached_chain(robot) is None:
+        return b"model " + robot_model_key(robot)
+    return b"joints " + _robot_fixed_key(robot)
+
+
+def _robot_fixed_key(robot: Robot) -> bytes:
+    """:func:`_fixed_key` of the robot's model, kept in its cache (a kinematic entry)."""
+    key: bytes = robot.cache.get("batch_fixed_key", lambda: _fixed_key(robot.model), kinematic=True)
+    return key
 
 
 def _fixed_key(model: pin.Model) -> bytes:
@@ -1598,7 +1615,7 @@ def _groups(
         if len(indices) >= MIN_LANES:
             groups[b"model " + model, integrator] = indices
         else:
-            pool = (batch_key(problems[indices[0]].robot.model), integrator)
+            pool = (robot_batch_key(problems[indices[0]].robot), integrator)
             groups.setdefault(pool, []).extend(indices)
     for key, indices in list(groups.items()):
         indices.sort()
