@@ -12,6 +12,7 @@ the CLI's and its workers can start their cases as soon as the driver has drawn 
 from __future__ import annotations
 
 import argparse
+import gc
 import signal
 import sys
 from collections.abc import Sequence
@@ -48,7 +49,13 @@ def pooled_study(argv: Sequence[str]) -> bool:
 
 
 def entry_point() -> int:
-    """Run ``vtm-pin`` on ``sys.argv``; returns the exit status."""
+    """Run ``vtm-pin`` on ``sys.argv``; returns the exit status.
+
+    The process ends once the command returns: its objects are then frozen (``gc.freeze``),
+    so that the interpreter's collections at exit do not walk them all again. After a
+    10,000-case study (its records, table and summary) they took 0.2-0.25 s of the command,
+    against ~0.05 s frozen (issue 27).
+    """
     interrupted = []
 
     def interrupt(signum: int, frame: object) -> None:
@@ -80,7 +87,9 @@ def entry_point() -> int:
         forget_interrupt()
         print("vtm-pin: interrupted; nothing written", file=sys.stderr)
         return EXIT_INTERRUPTED
-    return main()
+    code = main()
+    gc.freeze()
+    return code
 
 
 if __name__ == "__main__":
