@@ -210,7 +210,7 @@ def test_the_loops_momentum_is_m_v(reduced: bool) -> None:
     model in the scalar engine's loop, on the full model less g(q) in the batched engine's
     (which builds no weightless model a case). Both are CRBA's M times v within 1e-12
     relative to |g| + |M v| (the second subtracts g(q), ~1e2 N m on the UR10, at ~1e-16)."""
-    from vtm_pin.core.simulation import _Hybrid
+    from vtm_pin.core.simulation import _Hybrid, momentum
     from vtm_pin.numerics.dynamics import compute_M
     from vtm_pin.scene.scenario import SCENARIOS_DIR, load_scenario
 
@@ -226,4 +226,75 @@ def test_the_loops_momentum_is_m_v(reduced: bool) -> None:
             np.abs(expected).max()
             + np.abs(pin.computeGeneralizedGravity(robot.model, data, q)).max()
         )
-        np.testing.assert_allclose(h.momentum(), expected, rtol=0, atol=1e-12 * scale)
+        p = momentum(robot, h.data, h.q, h.v, reduced)
+        np.testing.assert_allclose(p, expected, rtol=0, atol=1e-12 * scale)
+
+
+@pytest.mark.parametrize("engine", ["scalar", "batched"])
+def test_locks_at_rest_are_recorded_when_first_read(engine: str, monkeypatch) -> None:
+    """A brake that sticks at rest is kept by the hybrid loop as a pending lock; its record
+    (whose transition needs the momentum M v) is made when the run's records are first read,
+    once. It is the at-rest jump: v+ = v- to the bit, no impulse, no energy lost, the free
+    momentum kept, and that momentum is CRBA's M v at the lock within 1e-12 of |M v| + |g|
+    (RNEA's round-off). Pickled, the records are their tuple."""
+    import pickle
+
+    from vtm_pin.core import simulation
+    from vtm_pin.core.batch import run_many
+    from vtm_pin.core.results import LockKind, LockRecords
+    from vtm_pin.numerics.dynamics import compute_M
+    from vtm_pin.scene.scenario import SCENARIOS_DIR, load_scenario
+
+    made = []
+    record = simulation._RestLock.record
+    monkeypatch.setattr(simulation._RestLock, "record", lambda self: made.append(1) or record(self))
+    scenario = load_scenario(SCENARIOS_DIR / "ur10_annex_b.yaml")
+    problems, integrators = [scenario.problem] * 2, [scenario.integrator] * 2
+    outcome = run_many(problems, integrators, transition=scenario.transition, engine=engine)
+    events = outcome.results[0].events
+    assert isinstance(events, LockRecords)
+    count = len(events)
+    assert made == []  # neither the run nor len() made a record
+    records = list(events)
+    sticks = [e for e in records if e.kind is LockKind.STICK]
+    assert len(records) == count and len(made) == len(sticks) >= 3
+    assert list(events) == records and len(made) == len(sticks)  # made once
+    robot = scenario.problem.robot
+    data = robot.model.createData()
+    for event in sticks:
+        tr = event.transition
+        np.testing.assert_array_equal(tr.v_plus, event.v_minus)
+        assert tr.energy_loss == 0.0 and not tr.Lambda.any()
+        np.testing.assert_array_equal(tr.p_free_minus, tr.p_free_plus)
+        held = [robot.joints.index(name) for name in (*event.locked_before, *event.lock)]
+        free = np.setdiff1d(np.arange(robot.nv), held)
+        expected = (compute_M(robot.model, data, event.q) @ event.v_minus)[free]
+        g = pin.computeGeneralizedGravity(robot.model, data, event.q)
+        scale = np.abs(expected).max(initial=0.0) + np.abs(g).max()
+        np.testing.assert_allclose(tr.p_free_minus, expected, rtol=0, atol=1e-12 * scale)
+    copied = pickle.loads(pickle.dumps(events))
+    assert isinstance(copied, LockRecords) and len(copied) == count
+    for mine, theirs in zip(records, copied, strict=True):
+        assert (mine.t, mine.kind, mine.lock) == (theirs.t, theirs.kind, theirs.lock)
+        np.testing.assert_array_equal(mine.v_plus, theirs.v_plus)
+        np.testing.assert_array_equal(mine.transition.p_free_minus, theirs.transition.p_free_minus)
+
+
+def test_a_studys_records_read_no_lock_record(monkeypatch) -> None:
+    """A study's case records need none of its runs' lock records: no lock at rest is
+    recorded (~6 % of a UR10 case's time, issue 27)."""
+    from vtm_pin.core import simulation
+    from vtm_pin.study.cases import find_study, load_study
+    from vtm_pin.study.runner import CaseTask, run_cases
+
+    made = []
+    record = simulation._RestLock.record
+    monkeypatch.setattr(simulation._RestLock, "record", lambda self: made.append(1) or record(self))
+    study = load_study(find_study("ur10_envelope"))
+    tasks = [
+        CaseTask(study.base, str(study.scenario.parent), str(study.scenario), "s", case, "f")
+        for case in study.cases()[:20]
+    ]
+    records = run_cases(tasks)
+    assert all(r["status"] == "ok" for r in records), records[0]["status"]
+    assert made == []

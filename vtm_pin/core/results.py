@@ -6,9 +6,10 @@ reports, plots and drawings read them without importing the loop.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any, Protocol, overload
 
 import numpy as np
 
@@ -98,6 +99,73 @@ class EventRecord:
         return self.transition.v_plus
 
 
+class PendingRecord(Protocol):
+    """A lock whose :class:`EventRecord` is made when it is first read (:class:`LockRecords`)."""
+
+    @property
+    def t(self) -> float:
+        """Event time [s]."""
+
+    @property
+    def activate(self) -> tuple[str, ...]:
+        """Names of the frame constraints activated."""
+
+    def record(self) -> EventRecord:
+        """The lock's record."""
+
+
+class LockRecords(Sequence[EventRecord]):
+    """A run's lock records, in time order; some are made only when first read.
+
+    The hybrid loop keeps a lock at rest (every locked rate 0: no jump; a brake that sticks,
+    six times a study case) as a :class:`PendingRecord`. Its record's transition needs the
+    momentum M v, that is RNEA passes; it is made, with the others, when the records are first
+    read, and then kept. A study's records read none of them: ~6 % of a UR10 case's time
+    (issue 27). The records are those the loop would have made at once, to the bit. Equal to
+    the tuple of the records; pickled as that tuple.
+    """
+
+    def __init__(self, items: Iterable[EventRecord | PendingRecord] = ()) -> None:
+        self._items: tuple[EventRecord | PendingRecord, ...] = tuple(items)
+        self._records: tuple[EventRecord, ...] | None = None
+
+    def _made(self) -> tuple[EventRecord, ...]:
+        if self._records is None:
+            self._records = tuple(
+                item if isinstance(item, EventRecord) else item.record() for item in self._items
+            )
+            self._items = self._records  # the pending locks' states are no longer needed
+        return self._records
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    @overload
+    def __getitem__(self, index: int) -> EventRecord: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> tuple[EventRecord, ...]: ...
+
+    def __getitem__(self, index: int | slice) -> EventRecord | tuple[EventRecord, ...]:
+        return self._made()[index]
+
+    def __iter__(self) -> Iterator[EventRecord]:
+        return iter(self._made())
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, LockRecords):
+            other = other._made()
+        return self._made() == other if isinstance(other, tuple) else NotImplemented
+
+    __hash__ = None  # type: ignore[assignment]  # as mutable as the records' arrays
+
+    def __repr__(self) -> str:
+        return repr(self._made())
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (LockRecords, (self._made(),))
+
+
 @dataclass(frozen=True)
 class SimulationResult:
     """A simulated motion with its events.
@@ -119,7 +187,8 @@ class SimulationResult:
             ``holding=False`` (not computed: a study's runs).
         drift: Constraint drift of the active frame constraints per sample, shape (k, 2):
             max |h| [m or rad] and max |J v| [m/s or rad/s]; NaN where none is active.
-        events: One record per lock, in time order.
+        events: One record per lock, in time order (from the hybrid loop, a
+            :class:`LockRecords`, which makes the records of locks at rest when first read).
         brake_events: Brake state changes, in time order.
         transition: Name of the transition rule used.
         integrator: Name of the integrator used.
@@ -141,7 +210,7 @@ class SimulationResult:
     brake_impulse: np.ndarray
     holding: np.ndarray
     drift: np.ndarray
-    events: tuple[EventRecord, ...]
+    events: Sequence[EventRecord]
     brake_events: tuple[BrakeEvent, ...]
     transition: str
     integrator: str

@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -30,6 +31,7 @@ from ..numerics.transitions.recursive import (
     compute_joint_lock_transition,
     compute_joint_lock_transition_dense,
     joint_lock_at_rest,
+    require_finite,
 )
 from ..physics.brakes import Brake, BrakeMachine
 from ..physics.drives import DriveHold, DriveLaw, DriveOff, DriveRamp, short_circuit
@@ -47,11 +49,65 @@ from .problem import LockEvent, Problem, check_transition
 from .results import (
     EventRecord,
     LockKind,
+    LockRecords,
     RowKind,
     RowLabel,
     SimulationResult,
 )
 from .topology import Topology, full_data, lock_indices, reduced_model, weightless_model
+
+
+def momentum(
+    robot: Robot, data: pin.Data, q: np.ndarray, v: np.ndarray, reduced: bool
+) -> np.ndarray:
+    """M v [N m s] by RNEA (neither M nor a solve), at (q [rad], v [rad/s]).
+
+    On the weightless model if ``reduced`` (the reduced loops' transitions use it anyway:
+    then equal to theirs to the bit); else (the batched engine's loops, which build no
+    weightless model per robot) RNEA(q, 0, v) on the full model with its ``data``, less its
+    gravity load g(q) (equal to round-off, ~1e-16 relative to g).
+    """
+    zero = np.zeros(robot.nv)
+    if reduced:
+        model, weightless_data = weightless_model(robot)
+        return pin.rnea(model, weightless_data, q, zero, v)
+    gravity = pin.computeGeneralizedGravity(robot.model, data, q).copy()
+    return pin.rnea(robot.model, data, q, zero, v) - gravity
+
+
+class _RestLock(NamedTuple):
+    """A lock at rest, its :class:`EventRecord` made when first read (a ``PendingRecord``).
+
+    The record is :func:`joint_lock_at_rest` at the lock's state, with the momentum
+    :func:`momentum` computes there: what the loop's lock would have recorded at once.
+    """
+
+    t: float
+    joints: tuple[int, ...]
+    before: tuple[int, ...]
+    q: np.ndarray
+    v: np.ndarray
+    kind: LockKind
+    robot: Robot
+    data: pin.Data
+    reduced: bool
+    labels: tuple[RowLabel, ...]
+    activate: tuple[str, ...] = ()
+
+    def record(self) -> EventRecord:
+        """The lock's record."""
+        p = momentum(self.robot, self.data, self.q, self.v, self.reduced)
+        names = self.robot.joints
+        return EventRecord(
+            t=self.t,
+            lock=tuple([names[i] for i in self.joints]),
+            locked_before=tuple([names[i] for i in self.before]),
+            q=self.q,
+            v_minus=self.v,
+            transition=joint_lock_at_rest(p, self.v, self.before, self.joints),
+            kind=self.kind,
+            rows=tuple([self.labels[i] for i in (*self.before, *self.joints)]),
+        )
 
 
 class _Hybrid:
@@ -86,9 +142,8 @@ class _Hybrid:
         self.frames: list[FrameConstraint] = []
         self.baumgarte = (0.0, 0.0)
         self.data = full_data(robot)
-        self.events: list[EventRecord] = []
+        self.events: list[EventRecord | _RestLock] = []
         self._labels = tuple(RowLabel(RowKind.JOINT, name) for name in robot.joints)
-        self._zero = np.zeros(n)  # read only: the zero acceleration of momentum()'s RNEA
         #: Built when first asked for (a stop's events at t = 0 replace it before that).
         self._phase: Phase | None = None
 
@@ -176,43 +231,29 @@ class _Hybrid:
 
         The kkt rule's jump is then the identity (:func:`joint_lock_at_rest`): no
         constraint is stacked, no M is formed; a brake sticking at rest takes this path,
-        six times a study case.
+        six times a study case. Its record, whose transition needs the momentum M v, is made
+        when the run's records are first read (:class:`_RestLock`).
         """
         before = self.locked
-        result = joint_lock_at_rest(self.momentum(), self.v, before, joints)
-        labels = self._labels
-        names = self.robot.joints
+        v_minus = self.v.copy()
+        require_finite(v_minus)  # v+ = v-: checked now, as the jump would be
         self.events.append(
-            EventRecord(
-                t=t,
-                lock=tuple([names[i] for i in joints]),
-                locked_before=tuple([names[i] for i in before]),
-                q=self.q.copy(),
-                v_minus=self.v.copy(),
-                transition=result,
-                kind=kind,
-                rows=tuple([labels[i] for i in (*before, *joints)]),
+            _RestLock(
+                t,
+                tuple(joints),
+                tuple(before),
+                self.q.copy(),
+                v_minus,
+                kind,
+                self.robot,
+                self.data,
+                self.reduced,
+                self._labels,
             )
         )
         self.locked = [*before, *joints]
-        self.v = result.v_plus.copy()
+        self.v = v_minus.copy()
         self.v[self.locked] = 0.0  # -0.0 as 0.0, as the general path
-
-    def momentum(self) -> np.ndarray:
-        """M v [N m s] by RNEA (neither M nor a solve).
-
-        On the weightless model, which the reduced loops' transitions use anyway (then equal to
-        theirs to the bit); the batched engine's loops (not reduced) build none per robot:
-        there RNEA(q, 0, v) on the full model, less its gravity load g(q) (equal to round-off,
-        ~1e-16 relative to g).
-        """
-        zero = self._zero
-        if self.reduced:
-            model, data = weightless_model(self.robot)
-            return pin.rnea(model, data, self.q, zero, self.v)
-        model, data = self.robot.model, self.data
-        gravity = pin.computeGeneralizedGravity(model, data, self.q).copy()
-        return pin.rnea(model, data, self.q, zero, self.v) - gravity
 
     def joint_lock(self, joints: Sequence[int]) -> TransitionResult:
         """The kkt rule's jump for pure joint locks, in O(n) without forming M.
@@ -806,7 +847,7 @@ class _Trace:
             brake_impulse=work[-1, WORKS:].copy(),
             holding=rows["hold"],
             drift=drift,
-            events=tuple(h.events),
+            events=LockRecords(h.events),
             brake_events=tuple(h.machine.events),
             transition=h.rule_name,
             integrator=integrator,

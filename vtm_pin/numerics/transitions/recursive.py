@@ -82,11 +82,7 @@ def compute_joint_lock_transition(
         v_locked[free] = 0.0
         tau = pin.rnea(model, data, q, zero, v_locked)[free]  # M_fl v-_l
         v_plus[free] += pin.aba(reduced, reduced_data, q[free], np.zeros(free.size), tau)
-    if not np.isfinite(v_plus).all():
-        raise TransitionError(
-            "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
-            "matrix is singular or too ill-conditioned for this lock"
-        )
+    require_finite(v_plus)
     M_dv = pin.rnea(model, data, q, zero, v_plus - v_minus)  # M (v+ - v-)
     return _result(v_minus, v_plus, p_minus, M_dv, locked, free, len(locked_before))
 
@@ -116,13 +112,18 @@ def compute_joint_lock_transition_dense(
     if free.size and v_l.any():  # joints locking at rest: no jump, no solve
         tau = M[free][:, rows] @ v_l  # M_fl v-_l
         v_plus[free] += np.linalg.solve(M[free][:, free], tau)
+    require_finite(v_plus)
+    M_dv = M @ (v_plus - v_minus)
+    return _result(v_minus, v_plus, p_minus, M_dv, rows, free, len(locked_before))
+
+
+def require_finite(v_plus: np.ndarray) -> None:
+    """Raise :class:`~vtm_pin.exceptions.TransitionError` unless every rate of v+ is finite."""
     if not np.isfinite(v_plus).all():
         raise TransitionError(
             "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
             "matrix is singular or too ill-conditioned for this lock"
         )
-    M_dv = M @ (v_plus - v_minus)
-    return _result(v_minus, v_plus, p_minus, M_dv, rows, free, len(locked_before))
 
 
 def at_rest(v_minus: np.ndarray, locked_before: Sequence[int], joints: Sequence[int]) -> bool:
@@ -147,11 +148,7 @@ def joint_lock_at_rest(
         joints: Velocity indices locking at the event.
     """
     v_plus = np.array(v_minus, dtype=float)
-    if not np.isfinite(v_plus).all():
-        raise TransitionError(
-            "Joint-lock transition is numerically unreliable: v+ is not finite; the mass "
-            "matrix is singular or too ill-conditioned for this lock"
-        )
+    require_finite(v_plus)
     _, free = _split(len(v_plus), locked_before, joints)
     p_free = p_minus[free]
     return TransitionResult(
