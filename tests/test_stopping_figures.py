@@ -26,17 +26,26 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
-from conftest import SCENARIOS
+from conftest import SCENARIOS, robot
 from hypothesis import given
 from hypothesis import strategies as st
 
 import vtm_pin as vp
+from vtm_pin.outputs import flags
 from vtm_pin.outputs.figures import stop_figures
-from vtm_pin.outputs.flags import LOAD_SAMPLES, arm_length, gravity_loads, load_rows
+from vtm_pin.outputs.flags import (
+    LOAD_SAMPLES,
+    arm_length,
+    gravity_bounds,
+    gravity_loads,
+    holding_flags,
+    load_rows,
+)
 from vtm_pin.outputs.stopping import compute_stopping_report
 from vtm_pin.physics.arm_points import sample_arm_points
 from vtm_pin.physics.brakes import BrakeEventKind, BrakeMode
 from vtm_pin.physics.kinematics import NUMPY_FROM
+from vtm_pin.physics.payload import Payload, attach_payload
 
 TOL = 1e-12  # [-] NumPy against Pinocchio kinematics: see the module docstring
 FLOOR = 1e-14  # [m, m/s]
@@ -334,3 +343,65 @@ def test_the_load_checks_cover_the_stop_evenly_from_signal_to_end(count):
         assert np.max(np.diff(rows)) <= math.ceil((count - 1) / (LOAD_SAMPLES - 1)) + 1
     with pytest.raises(ValueError):
         rows[0] = 1
+
+
+BOUND_TOL = 1e-12  # [-] relative, and [N m]: RNEA's round-off on a bound that can be attained
+
+
+@pytest.mark.parametrize("name", ["planar_3r", "ur10", "ur5_cb3", "rx160l"])
+@given(
+    mass=st.floats(0.0, 20.0),
+    com=st.tuples(*[st.floats(-0.3, 0.3)] * 3),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_the_gravity_bound_holds_in_every_pose_with_any_payload(name, mass, com, seed):
+    """|g_j(q)| <= gravity_bounds(robot)_j for random poses of arms with a payload attached."""
+    base = robot(name)
+    arm = attach_payload(base, Payload(mass, com)) if name != "planar_3r" else base
+    bounds = gravity_bounds(arm)
+    model = arm.model
+    rng = np.random.default_rng(seed)
+    qs = rng.uniform(-np.pi, np.pi, (200, model.nq))
+    loads = gravity_loads(arm, qs)
+    assert np.all(loads <= bounds * (1.0 + BOUND_TOL) + BOUND_TOL)
+
+
+def test_an_arm_with_a_sliding_joint_has_no_gravity_bound():
+    assert gravity_bounds(robot("panda")) is None
+
+
+@pytest.mark.parametrize("scale", [0.05, 0.3, 0.6, 1.0, 3.0])
+def test_the_holding_flags_are_those_of_the_sampled_loads_with_or_without_the_bound(
+    scale, monkeypatch
+):
+    """Brakes above the bound of every load raise no flag without sampling the loads; the
+    others are checked at the sampled loads: the flags are those the sampled loads alone give
+    (the UR10 with 10 kg at full reach, three of its brakes' torques scaled)."""
+    raw = shipped("ur10_annex_b", duration=0.4)
+    brakes = raw.setdefault("brakes", {})
+    for joint in ("shoulder_lift_joint", "elbow_joint", "wrist_1_joint"):
+        torque = {"shoulder_lift_joint": 5.0, "elbow_joint": 2.0, "wrist_1_joint": 0.4}[joint]
+        brakes[joint] = {
+            "delay": 0.05,
+            "sliding_torque": scale * torque,
+            "static_torque": 1.2 * scale * torque,
+        }
+    scenario = vp.build_scenario(raw, source="scaled", base_dir=SCENARIOS)
+    result = vp.run_scenario(scenario)
+    report = compute_stopping_report(scenario.robot, result, scenario.brakes, scenario.tool_frame)
+    sampled = []
+    loads = flags.gravity_loads
+    monkeypatch.setattr(flags, "gravity_loads", lambda *a: sampled.append(1) or loads(*a))
+    quick = holding_flags(scenario.robot, scenario.brakes, result, report)
+    monkeypatch.setattr(flags, "gravity_bounds", lambda arm: None)
+    full = holding_flags(scenario.robot, scenario.brakes, result, report)
+    assert [(f.kind, f.message, f.joints) for f in quick] == [
+        (f.kind, f.message, f.joints) for f in full
+    ]
+    if scale >= 3.0:  # every brake above the bound of its load: nothing sampled
+        assert not sampled[:-1] and not quick
+    if scale <= 0.05:  # far too weak: both flags, found at the sampled loads
+        assert sampled[:-1] and {f.kind for f in quick} == {
+            "brake_cannot_hold",
+            "brake_cannot_stop",
+        }
