@@ -282,7 +282,7 @@ def test_locks_at_rest_are_recorded_when_first_read(engine: str, monkeypatch) ->
 
 def test_a_studys_records_read_no_lock_record(monkeypatch) -> None:
     """A study's case records need none of its runs' lock records: no lock at rest is
-    recorded (~6 % of a UR10 case's time, issue 27)."""
+    recorded (4-6 % of a UR10 case's time, issue 27)."""
     from vtm_pin.core import simulation
     from vtm_pin.study.cases import find_study, load_study
     from vtm_pin.study.runner import CaseTask, run_cases

@@ -120,7 +120,7 @@ class LockRecords(Sequence[EventRecord]):
     The hybrid loop keeps a lock at rest (every locked rate 0: no jump; a brake that sticks,
     six times a study case) as a :class:`PendingRecord`. Its record's transition needs the
     momentum M v, that is RNEA passes; it is made, with the others, when the records are first
-    read, and then kept. A study's records read none of them: ~6 % of a UR10 case's time
+    read, and then kept. A study's records read none of them: 4-6 % of a UR10 case's time
     (issue 27). The records are those the loop would have made at once, to the bit. Equal to
     the tuple of the records; pickled as that tuple.
     """
