@@ -48,4 +48,5 @@ def test_runs_without_holding_torques_move_and_decide_alike_to_the_bit(engine: s
         assert [(e.t, e.lock) for e in one.events] == [(e.t, e.lock) for e in other.events]
         assert one.rhs_evals == other.rhs_evals
         assert np.isfinite(one.holding).any()  # the locks' torques, where they are kept
-        assert np.isnan(other.holding).all()  # not computed
+        assert np.isnan(other.holding).all()  # not computed, nor kept block by block
+        assert other.holding.shape == one.holding.shape

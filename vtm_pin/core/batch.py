@@ -526,7 +526,8 @@ class _Run:
         self.grid: _Grid | None = None
         self.ts: list[np.ndarray] = []
         self.ys: list[np.ndarray] = []
-        self.holds: list[np.ndarray] = []
+        #: Its samples' holding torques, if they are kept (:attr:`BatchEngine.holding`).
+        self.holds: list[np.ndarray] | None = [] if holding else None
         self.reduced = np.zeros(0, dtype=int)
         #: The intervals its lane ended at rests it decided itself, not yet handed to the loop.
         self.pieces: list[Rested] = []
@@ -536,7 +537,8 @@ class _Run:
         """Keep its lane ``b``'s state now as a sample (time, padded state, holding torques)."""
         self.ts.append(lanes.t[b : b + 1].copy())
         self.ys.append(lanes.y[b : b + 1].copy())
-        self.holds.append(lanes.lam[b : b + 1].copy())
+        if self.holds is not None:
+            self.holds.append(lanes.lam[b : b + 1].copy())
 
     def advance(self, segment: Reply | None = None, error: VtmError | None = None) -> None:
         """Send the loop its segment(s) (or error); keep its next request or its outcome."""
@@ -712,7 +714,8 @@ class BatchEngine:
         lanes.running[b] = True
         run.output_dt = request.integrator.output_dt  # type: ignore[attr-defined]
         _start_grid(lanes, b, run, request.t0, request.t1)
-        run.ts, run.ys, run.holds = [], [], []
+        run.ts, run.ys = [], []
+        run.holds = [] if self.holding else None
 
     @staticmethod
     def _load_constants(lanes: _Lanes, b: int, phase: object) -> None:
@@ -1084,10 +1087,8 @@ class BatchEngine:
         when = np.array(times)
         x = (when - lanes.t[sub][owner]) / part.h[owner]
         y = dp.dense_value(F[owner], x, lanes.y[sub][owner], _LANES)
-        if self.holding:
-            _, lam = self.rhs(lanes, sub[owner], when, y)
-        else:  # no right-hand side for the samples: nobody reads their holding torques
-            lam = np.full((len(when), self.n), np.nan)
+        # No right-hand side for the samples without holding torques: nobody reads them.
+        lam = self.rhs(lanes, sub[owner], when, y)[1] if self.holding else None
         # Each lane's samples are consecutive: one slice (a view) of each per lane.
         bounds = (np.flatnonzero(np.diff(owner)) + 1).tolist()
         starts, ends = [0, *bounds], [*bounds, len(when)]
@@ -1095,7 +1096,8 @@ class BatchEngine:
             run = runs[b]
             run.ts.append(when[first:end])
             run.ys.append(y[first:end])
-            run.holds.append(lam[first:end])
+            if lam is not None:
+                run.holds.append(lam[first:end])
 
     def _own_margins(
         self,
@@ -1248,7 +1250,7 @@ class BatchEngine:
         lanes: _Lanes,
         run: _Run,
         b: int,
-        samples: tuple[np.ndarray, np.ndarray, np.ndarray],
+        samples: tuple[np.ndarray, np.ndarray, np.ndarray | None],
         event: int | None,
     ) -> None:
         """Hand run ``b`` its interval's samples as its segment (reduced layout)."""
@@ -1274,16 +1276,20 @@ class BatchEngine:
 
     def _samples(
         self, lanes: _Lanes, run: _Run, b: int
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Run ``b``'s samples since its interval began, taken from it.
 
         Returns:
-            Times [s], padded states and holding torques [N m] (NaN at free joints).
+            Times [s], padded states and holding torques [N m] (NaN at free joints; None
+            without :attr:`holding`).
         """
         begin = time.perf_counter()
-        t, y, hold = np.concatenate(run.ts), np.concatenate(run.ys), np.concatenate(run.holds)
-        hold[:, ~lanes.locked[b] if self.holding else slice(None)] = np.nan
-        run.ts, run.ys, run.holds = [], [], []
+        t, y, hold = np.concatenate(run.ts), np.concatenate(run.ys), None
+        run.ts, run.ys = [], []
+        if run.holds is not None:
+            hold = np.concatenate(run.holds)
+            hold[:, ~lanes.locked[b]] = np.nan
+            run.holds = []
         self.seconds["lanes"] += time.perf_counter() - begin
         return t, y, hold
 

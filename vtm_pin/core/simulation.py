@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -423,7 +423,8 @@ class Rested:
         t: Sample times [s]; t[-1] is the rest.
         y: States at those times, of all n joints: (q, v, W_brake, W_drive, W_short, P_brake),
             shape (len(t), 3 n + 3) [rad, rad/s, J, N m s].
-        holding: Holding torques at the samples [N m], NaN at free joints, shape (len(t), n).
+        holding: Holding torques at the samples [N m], NaN at free joints, shape (len(t), n);
+            None if the run keeps none.
         rhs_evals: Right-hand-side evaluations of the interval.
         steps: Its accepted steps.
         joint: Index of the joint that reached rest.
@@ -432,7 +433,7 @@ class Rested:
 
     t: np.ndarray
     y: np.ndarray
-    holding: np.ndarray
+    holding: np.ndarray | None
     rhs_evals: int
     steps: int
     joint: int
@@ -559,8 +560,13 @@ def hybrid_run(
             t_end,
             _sampling(integrator, phase),
         )
-        for piece in reply if isinstance(reply, tuple) else (reply,):
-            t = _take(h, trace, piece, counts, integrator, duration, progress)
+        pieces = reply if isinstance(reply, tuple) else (reply,)
+        last = pieces[-1]
+        rests = pieces if isinstance(last, Rested) else pieces[:-1]
+        if rests:
+            t = _take_rests(h, trace, rests, counts, duration, progress)  # type: ignore[arg-type]
+        if not isinstance(last, Rested):
+            t = _take(h, trace, last, counts, integrator, duration, progress)
     return trace.result(
         robot,
         h,
@@ -583,7 +589,7 @@ class _Counts:
 def _take(
     h: _Hybrid,
     trace: _Trace,
-    piece: Segment | Rested,
+    segment: Segment,
     counts: _Counts,
     integrator: Integrator,
     duration: float,
@@ -591,12 +597,8 @@ def _take(
 ) -> float:
     """Record one interval of the current phase and apply the state event ending it; its end [s].
 
-    A :class:`Rested` interval's event is decided already: its joint sticks. Any other event
-    goes to the brakes' :meth:`~vtm_pin.physics.brakes.BrakeMachine.settle`.
+    The event goes to the brakes' :meth:`~vtm_pin.physics.brakes.BrakeMachine.settle`.
     """
-    if isinstance(piece, Rested):
-        return _take_rested(h, trace, piece, counts, duration, progress)
-    segment = piece
     phase = h.phase
     counts.rhs_evals += segment.rhs_evals
     counts.steps += segment.steps
@@ -614,30 +616,49 @@ def _take(
     return t
 
 
-def _take_rested(
+def _take_rests(
     h: _Hybrid,
     trace: _Trace,
-    piece: Rested,
+    rests: Sequence[Rested],
     counts: _Counts,
     duration: float,
     progress: Callable[[float], None] | None,
 ) -> float:
-    """:func:`_take` for a :class:`Rested` interval: its joint sticks; no phase is built."""
-    counts.rhs_evals += piece.rhs_evals
-    counts.steps += piece.steps
-    if not np.isfinite(piece.y).all():
+    """:func:`_take` for consecutive :class:`Rested` intervals: their joints stick in turn.
+
+    No phase is built. Their samples are checked and recorded as one block (each interval
+    keeps its own row of free joints and brake modes); each stick is recorded as it would be
+    alone. Returns the last one's end [s].
+    """
+    y = rests[0].y if len(rests) == 1 else np.concatenate([piece.y for piece in rests])
+    if not np.isfinite(y).all():
+        bad = next(piece for piece in rests if not np.isfinite(piece.y).all())
         raise SimulationError(
-            f"The state became non-finite between t = {piece.t[0]:.6g} s and "
-            f"{piece.t[-1]:.6g} s: the step is too large for these dynamics; reduce it"
+            f"The state became non-finite between t = {bad.t[0]:.6g} s and "
+            f"{bad.t[-1]:.6g} s: the step is too large for these dynamics; reduce it"
         )
-    h.q, h.v, h.extras = trace.add_rested(piece, h)
-    t = float(piece.t[-1])
-    if progress is not None:
-        progress(t)
-    counts.state_events += 1
-    _check_chatter(counts.state_events, t)
-    h.stick_rested(t, piece.joint, piece.hold)
-    if t >= duration:
+    n = trace.n
+    ends = y[np.cumsum([piece.t.size for piece in rests]) - 1]  # each one's last state, a copy
+    t = 0.0
+    for piece, end in zip(rests, ends, strict=True):
+        counts.rhs_evals += piece.rhs_evals
+        counts.steps += piece.steps
+        trace.add_rows(h, piece.t.size)  # its free joints and modes, before its stick
+        h.q, h.v, h.extras = end[:n], end[n : 2 * n], end[2 * n :]
+        t = float(piece.t[-1])
+        if progress is not None:
+            progress(t)
+        counts.state_events += 1
+        _check_chatter(counts.state_events, t)
+        h.stick_rested(t, piece.joint, piece.hold)
+    trace.add_arrays(
+        t=rests[0].t if len(rests) == 1 else np.concatenate([piece.t for piece in rests]),
+        q=y[:, :n],
+        v=y[:, n : 2 * n],
+        extras=y[:, 2 * n :],
+        hold=np.concatenate([p.holding for p in rests]) if trace.holding else None,
+    )
+    if t >= duration:  # not from the batched engine, whose rests fall before its intervals' ends
         trace.add_state(t, h)
     return t
 
@@ -722,10 +743,11 @@ class _Trace:
     def __init__(self, n: int, n_extras: int, holding: bool = True) -> None:
         self.n = n
         self.n_extras = n_extras
-        #: Whether the locks' holding torques are kept at the samples (NaN if not).
+        #: Whether the locks' holding torques are kept at the samples (NaN if not: no block
+        #: of them is kept, the result's are made at once).
         self.holding = holding
         self.blocks: dict[str, list[np.ndarray]] = {
-            key: [] for key in ("t", "q", "v", "extras", "hold")
+            key: [] for key in ("t", "q", "v", "extras", "hold")[: 5 if holding else 4]
         }
         self.sizes: list[int] = []
         self.free: list[np.ndarray] = []  # a row per block
@@ -739,17 +761,30 @@ class _Trace:
         free: np.ndarray,
         modes: Sequence[int],
         drift: np.ndarray | None = None,
-        **arrays: np.ndarray,
+        **arrays: Any,
     ) -> None:
-        size = len(arrays["t"])
-        for key, value in arrays.items():
-            self.blocks[key].append(value)
+        self.add_arrays(**arrays)
+        self._rows(free, modes, len(arrays["t"]), drift)
+
+    def add_arrays(self, **arrays: Any) -> None:
+        """The arrays of a block's samples (``hold`` kept only with :attr:`holding`)."""
+        for key, blocks in self.blocks.items():
+            blocks.append(arrays[key])
+
+    def _rows(
+        self, free: np.ndarray, modes: Sequence[int], size: int, drift: np.ndarray | None = None
+    ) -> None:
+        """The free mask and modes of ``size`` samples (and their constraint drift)."""
         self.sizes.append(size)
         self.free.append(free)
         self.modes.append(tuple(modes))
         if drift is not None:
             self.drift.append((self.samples, drift))
         self.samples += size
+
+    def add_rows(self, h: _Hybrid, size: int) -> None:
+        """The free mask and modes of the loop now, for ``size`` samples of a block."""
+        self._rows(self._free(h), h.machine.modes, size)
 
     def _free(self, h: _Hybrid) -> np.ndarray:
         free = self._all_free.copy()  # a copy of a template: np.ones costs ~3x as much
@@ -765,7 +800,7 @@ class _Trace:
             q=h.q[None].copy(),
             v=h.v[None].copy(),
             extras=h.extras[None].copy(),
-            hold=np.full((1, self.n), np.nan),
+            hold=np.full((1, self.n), np.nan) if self.holding else None,
         )
 
     def add_segment(
@@ -779,12 +814,11 @@ class _Trace:
         q[:, topology.locked_index] = topology.q_locked
         q[:, topology.free] = segment.y[:, :k]
         v[:, topology.free] = segment.y[:, k : 2 * k]
-        hold = np.full((size, n), np.nan)
-        holding = self.holding
-        if holding and topology.locked and segment.holding is not None:
+        hold = np.full((size, n), np.nan) if self.holding else None
+        if hold is not None and topology.locked and segment.holding is not None:
             locked = list(topology.locked)
             hold[:, locked] = segment.holding[:, locked]
-        elif holding and topology.locked:
+        elif hold is not None and topology.locked:
             locked = list(topology.locked)
             for r in range(size):
                 hold[r, locked] = phase.holding_torque(segment.t[r], segment.y[r])[locked]
@@ -801,22 +835,6 @@ class _Trace:
         )
         return q[-1].copy(), v[-1].copy(), extras[-1].copy()
 
-    def add_rested(self, piece: Rested, h: _Hybrid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Record a :class:`Rested` interval; the full (q, v, extras) at its end."""
-        n = self.n
-        y = piece.y
-        self._append(
-            self._free(h),
-            h.machine.modes,
-            t=piece.t,
-            q=y[:, :n],
-            v=y[:, n : 2 * n],
-            extras=y[:, 2 * n :],
-            hold=piece.holding,
-        )
-        last = y[-1].copy()  # one copy; the loop's q, v and extras are its parts
-        return last[:n], last[n : 2 * n], last[2 * n :]
-
     def result(
         self,
         robot: Robot,
@@ -829,6 +847,8 @@ class _Trace:
     ) -> SimulationResult:
         """The collected samples and the events as a :class:`SimulationResult`."""
         rows = {key: np.concatenate(blocks) for key, blocks in self.blocks.items()}
+        if not self.holding:
+            rows["hold"] = np.full((self.samples, self.n), np.nan)
         sizes = np.array(self.sizes)
         drift = np.full((self.samples, 2), np.nan)
         for first, block in self.drift:
