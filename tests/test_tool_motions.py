@@ -9,16 +9,21 @@ instead of one of each per run, whose fixed overhead was most of its cost at a s
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import SCENARIOS
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vtm_pin.core.batch import run_many
 from vtm_pin.core.results import SimulationResult
 from vtm_pin.outputs.stopping import (
+    _rest_times,
     compute_stopping_report,
+    sample_figures,
     signal_row,
     tool_motion,
     tool_motions,
@@ -159,3 +164,67 @@ def test_a_failing_joint_pass_fails_no_case(monkeypatch) -> None:
             assert (value is None) == (other is None), key
             if value is not None:
                 assert value == pytest.approx(other, rel=ROUND_OFF, abs=ROUND_OFF), key
+
+
+def test_each_runs_sample_figures_are_its_own_to_the_bit(mixed_runs) -> None:
+    """Figures formed over many runs' stacked samples are each run's own, computed alone."""
+    _, runs = mixed_runs
+    together = tool_motions(runs)
+    for (_, result, _), motion in zip(runs, together, strict=True):
+        assert motion.figures is not None
+        alone = sample_figures([result], [signal_row(result)], motion.path, motion.speed)[0]
+        np.testing.assert_array_equal(motion.figures.rest_times, alone.rest_times)
+        for name in ("distance", "length", "peak_speed", "reach"):
+            assert getattr(motion.figures, name) == getattr(alone, name), name
+        # and what they are, by their definitions
+        path = motion.path
+        assert alone.distance == pytest.approx(np.linalg.norm(path[-1] - path[0]), abs=1e-15)
+        assert alone.length == np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))
+        assert alone.peak_speed == np.max(motion.speed)
+        assert alone.reach == np.max(np.linalg.norm(path - path[0], axis=1))
+
+
+def rest_time_by_hand(t: list[float], speed: list[float], rest: float) -> float:
+    """When |v| falls below ``rest`` for good, sample by sample (linear in between)."""
+    above = [i for i, s in enumerate(speed) if abs(s) > rest]
+    if not above:
+        return t[0]
+    a = above[-1]
+    if a == len(t) - 1:
+        return math.nan  # still moving at the end
+    if t[a + 1] == t[a]:  # an event: the speed drops at its time
+        return t[a]
+    fraction = (abs(speed[a]) - rest) / (abs(speed[a]) - abs(speed[a + 1]))
+    return t[a] + fraction * (t[a + 1] - t[a])
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    runs=st.lists(
+        st.tuples(
+            st.lists(st.floats(-2.0, 2.0), min_size=1, max_size=12),  # joint 1's rates
+            st.lists(st.booleans(), min_size=12, max_size=12),  # which steps are events
+            st.floats(1e-4, 0.5),  # rest speed
+        ),
+        min_size=1,
+        max_size=5,
+    )
+)
+def test_rest_times_of_stacked_runs_follow_their_definition(runs) -> None:
+    """Per run and joint: the time |v| falls below the rest speed for good, whatever stacks."""
+    ts, vs, rests, counts = [], [], [], []
+    for rates, events, rest in runs:
+        steps = [0.0 if e else 0.01 for e in events[: len(rates) - 1]]
+        ts.append(np.concatenate([[0.3], 0.3 + np.cumsum(steps)]))
+        vs.append(np.column_stack([rates, np.zeros(len(rates)), np.array(rates[::-1]) / 3]))
+        rests.append(rest)
+        counts.append(len(rates))
+    counts_a = np.array(counts)
+    firsts = np.concatenate([[0], np.cumsum(counts_a)[:-1]]).astype(int)
+    out = _rest_times(np.concatenate(ts), np.concatenate(vs), np.array(rests), firsts, counts_a)
+    assert out.shape == (len(runs), 3)
+    for r, (t, v, rest) in enumerate(zip(ts, vs, rests, strict=True)):
+        for j in range(3):
+            expected = rest_time_by_hand(list(t), list(v[:, j]), rest)
+            # the same formula, term by term: equal to the bit (NaN: still moving)
+            np.testing.assert_array_equal(out[r, j], expected)

@@ -147,8 +147,7 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     tested = (
         state.joint_index if state is not None else max(range(len(angles)), key=angles.__getitem__)
     )
-    path = report.tcp_path
-    reach = float(np.max(np.linalg.norm(path - path[0], axis=1))) if len(path) else 0.0
+    reach = report.tcp_reach
     motion = report.motion  # what the report was made from, computed with other runs' or not
     if motion is not None and len(motion.speed):
         speed = float(motion.speed[0])  # its tool speed from the placements, by NumPy

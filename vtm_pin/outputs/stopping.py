@@ -101,6 +101,7 @@ class StoppingReport:
         tcp_distance: Straight-line distance from the signal position to the final one [m].
         tcp_path_length: Length of the swept path after the signal [m].
         tcp_peak_speed: Largest tool-frame speed after the signal [m/s].
+        tcp_reach: Largest distance of the tool frame from its signal position [m].
         placements: The joints' world placements ``(R, p)`` at the samples from the signal on
             (:func:`vtm_pin.physics.kinematics.joint_placements`), which
             :func:`vtm_pin.outputs.figures.stop_figures` reuses; None if not at hand.
@@ -121,6 +122,7 @@ class StoppingReport:
     tcp_distance: float
     tcp_path_length: float
     tcp_peak_speed: float
+    tcp_reach: float
     placements: tuple[np.ndarray, np.ndarray] | None = field(
         default=None, repr=False, compare=False
     )
@@ -198,6 +200,8 @@ class ToolMotion:
         column_norms: The lengths of the tool frame's linear Jacobian columns at the first
             sample [m/rad or -], shape (nv,)
             (:func:`~vtm_pin.physics.kinematics.tool_column_norms`), if they were computed.
+        figures: What the report reads from the run's samples (:func:`sample_figures`), if
+            they were computed with other runs'.
     """
 
     placements: tuple[np.ndarray, np.ndarray]
@@ -206,6 +210,70 @@ class ToolMotion:
     arm: ArmDisplacement | None = None
     arm_speed: float | None = None
     column_norms: np.ndarray | None = None
+    figures: SampleFigures | None = None
+
+
+@dataclass(frozen=True)
+class SampleFigures:
+    """What a stopping report reads from one run's samples from its stop signal on.
+
+    Attributes:
+        rest_times: When each joint's speed falls below the rest speed for good [s]
+            (:func:`_rest_times`; NaN: still moving at the end), shape (n,).
+        distance: The tool frame's straight-line distance from its first sample to its last [m].
+        length: The length of its path [m].
+        peak_speed: Its largest speed [m/s].
+        reach: Its largest distance from the first sample [m].
+    """
+
+    rest_times: np.ndarray
+    distance: float
+    length: float
+    peak_speed: float
+    reach: float
+
+
+def sample_figures(
+    results: Sequence[SimulationResult],
+    rows: Sequence[int],
+    path: np.ndarray,
+    speed: np.ndarray,
+) -> list[SampleFigures]:
+    """The :class:`SampleFigures` of many runs at once, each from its own samples only.
+
+    Args:
+        results: The runs.
+        rows: Each run's signal row (:func:`signal_row`).
+        path: The tool frame's origins [m] at every run's samples from its signal row on,
+            stacked in the runs' order, shape (S, 3).
+        speed: Its speeds there [m/s], shape (S,).
+
+    Each figure is formed sample by sample over the stack (the same products as run by run,
+    so the same bits) and reduced per run: maxima by segment, a path's length by its own
+    sum. They do not depend on which runs are computed together.
+    """
+    counts = np.array([len(r.t) - i for r, i in zip(results, rows, strict=True)])
+    firsts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int)
+    lasts = firsts + counts - 1
+    t = np.concatenate([r.t[i:] for r, i in zip(results, rows, strict=True)])
+    v = np.concatenate([r.v[i:] for r, i in zip(results, rows, strict=True)])
+    rest = np.array(
+        [r.stop.rest_speed if r.stop is not None else DEFAULT_REST_SPEED for r in results]
+    )
+    rest_times = _rest_times(t, v, rest, firsts, counts)
+    away = np.linalg.norm(path - np.repeat(path[firsts], counts, axis=0), axis=1)
+    reach, peak = np.maximum.reduceat(away, firsts), np.maximum.reduceat(speed, firsts)
+    steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    return [
+        SampleFigures(
+            rest_times[r],
+            float(away[lasts[r]]),
+            float(np.sum(steps[firsts[r] : lasts[r]])),
+            float(peak[r]),
+            float(reach[r]),
+        )
+        for r in range(len(results))
+    ]
 
 
 def signal_row(result: SimulationResult) -> int:
@@ -260,10 +328,15 @@ def tool_motions(
         norms = None
         if cached_chain(robot) is not None:
             norms = tool_column_norms(robot, (R[firsts], p[firsts]), frame)
+        figures = sample_figures(
+            [runs[r][1] for r in members], [rows[r] for r in members], path, speed
+        )
         for c, (r, first, stop) in enumerate(zip(members, firsts, ends, strict=True)):
             mine = slice(int(first), int(stop))
             column = None if norms is None else norms[c]
-            out[r] = ToolMotion((R[mine], p[mine]), path[mine], speed[mine], column_norms=column)
+            out[r] = ToolMotion(
+                (R[mine], p[mine]), path[mine], speed[mine], None, None, column, figures[c]
+            )
     done = [m for m in out if m is not None]
     return _at_the_arm(done, runs, rows)
 
@@ -328,7 +401,8 @@ def compute_stopping_report(
         raise ValueError(f"motion has {len(motion.path)} samples; the run {len(v)} from its signal")
     path, speed = motion.path, motion.speed
     rest_speed = result.stop.rest_speed if result.stop is not None else DEFAULT_REST_SPEED
-    stop_time = _rest_times(result.t[i0:], v, rest_speed) - t_signal
+    figures = motion.figures or sample_figures([result], [i0], path, speed)[0]
+    stop_time = figures.rest_times - t_signal
     all_stopped = float(np.max(stop_time)) if np.all(np.isfinite(stop_time)) else float("nan")
     return StoppingReport(
         signal_time=t_signal,
@@ -340,9 +414,10 @@ def compute_stopping_report(
         all_stopped_time=all_stopped,
         tool_frame=tool_frame or robot.tool_frame,
         tcp_path=path,
-        tcp_distance=float(np.linalg.norm(path[-1] - path[0])),
-        tcp_path_length=float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))),
-        tcp_peak_speed=float(np.max(speed)),
+        tcp_distance=figures.distance,
+        tcp_path_length=figures.length,
+        tcp_peak_speed=figures.peak_speed,
+        tcp_reach=figures.reach,
         placements=motion.placements,
         motion=motion,
         source=(robot, result, tuple(brakes)),
@@ -423,23 +498,28 @@ def _holding_figures(
     return peak_hold, margin
 
 
-def _rest_times(t: np.ndarray, v: np.ndarray, rest_speed: float) -> np.ndarray:
-    """Per column of ``v``: when |v| falls below ``rest_speed`` for good [s] (NaN: not yet).
+def _rest_times(
+    t: np.ndarray, v: np.ndarray, rest_speed: np.ndarray, firsts: np.ndarray, counts: np.ndarray
+) -> np.ndarray:
+    """Per run and joint: when |v| falls below the run's ``rest_speed`` for good [s] (NaN: not yet).
 
-    Between the last sample above and the next one, |v| is interpolated linearly; at an
-    event (two samples at one time) the speed drops at the event time.
+    Runs' samples stacked (times ``t`` [s], rates ``v`` [rad/s], shape (S, n)), run r's
+    ``counts[r]`` of them from row ``firsts[r]``; ``rest_speed`` [rad/s] per run. Between the
+    last sample above and the next one, |v| is interpolated linearly; at an event (two samples
+    at one time) the speed drops at the event time. Shape (runs, n).
     """
     speed = np.abs(v)
-    above = speed > rest_speed
-    count = len(t)
-    last = count - 1 - np.argmax(above[::-1], axis=0)  # the last sample above, per column
-    out = np.where(above.any(axis=0), np.nan, t[0])
-    cols = np.flatnonzero(above.any(axis=0) & (last < count - 1))  # at rest by the end
-    a = last[cols]
+    above = speed > np.repeat(rest_speed, counts)[:, None]
+    last = np.maximum.reduceat(np.where(above, np.arange(len(t))[:, None], -1), firsts, axis=0)
+    out = np.where(last >= 0, np.nan, t[firsts][:, None])
+    run, col = np.nonzero(
+        (last >= 0) & (last < (firsts + counts - 1)[:, None])
+    )  # at rest by the end
+    a = last[run, col]  # the last sample above
     span = t[a + 1] - t[a]
-    slope = speed[a, cols] - speed[a + 1, cols]
+    slope = speed[a, col] - speed[a + 1, col]
     ends = span > 0.0
-    fraction = (speed[a, cols][ends] - rest_speed) / slope[ends]
-    out[cols] = t[a]
-    out[cols[ends]] = t[a][ends] + fraction * span[ends]
+    fraction = (speed[a, col][ends] - rest_speed[run][ends]) / slope[ends]
+    out[run, col] = t[a]
+    out[run[ends], col[ends]] = t[a][ends] + fraction * span[ends]
     return out
