@@ -376,3 +376,19 @@ def test_sweep_of_extensions_and_guesses(name):
             p, _, shoulder = tool_state(name, q)
             assert np.hypot(p[0], p[1]) / R == pytest.approx(e, abs=EXTENSION_TOL)
             assert abs(p[2] - shoulder) <= PLANE_TOL
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_the_test_states_reach_and_column_are_the_evaluators_to_the_bit(name):
+    """compute_test_state reads r(q) and the tested joint's column without a whole evaluator."""
+    r = robot(name)
+    chain = annex_b._robot_chain(r, r.tool_frame)
+    lo, hi = r.model.lowerPositionLimit, r.model.upperPositionLimit
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        q = rng.uniform(np.maximum(lo, -3.0), np.minimum(hi, 3.0))
+        ev = annex_b._Evaluator(r.model, chain, q)
+        for i in range(r.nv):
+            reach, column = annex_b._reach_and_column(r.model, chain, q, r.model.createData(), i)
+            assert reach == ev.reach()
+            np.testing.assert_array_equal(column, ev.J[:, i])

@@ -297,8 +297,8 @@ def compute_test_state(
     guess = _clip(model, _as_q(model, q_guess))
     q = _extension_pose(model, chain, conditions.extension, guess)
     R = _max_reach(model, chain, guess).R
-    ev = _Evaluator(model, chain, q, pinocchio_data(robot))  # a Data costs ~70 us to make
-    sign, vertical = _direction(model, ev.column(i), conditions.direction)
+    reach, column = _reach_and_column(model, chain, q, pinocchio_data(robot), i)
+    sign, vertical = _direction(model, column, conditions.direction)
     speed = sign * conditions.speed * top
     v = np.zeros(model.nv)
     v[i] = speed
@@ -306,7 +306,7 @@ def compute_test_state(
         q=q,
         v=v,
         speed=speed,
-        reach=ev.reach(),
+        reach=reach,
         max_reach=R,
         vertical=vertical,
         joint_index=i,
@@ -550,9 +550,7 @@ class _Evaluator:
         self.J = self.J6[:3]
         self.Jf6 = self.J6[:, chain.free]
         Jf = self.Jf6[:3]
-        d = self.data.oMf[chain.frame].translation - chain.point
-        along = float(chain.axis @ d)
-        radial = d - along * chain.axis
+        along, radial = _offset(self.data, chain)
         self.r = float(np.linalg.norm(radial))
         self.h = along - self.plane_height
         self.dr = (radial / self.r) @ Jf if self.r > 0.0 else np.zeros(len(x))
@@ -590,10 +588,6 @@ class _Evaluator:
         M = (kx @ W).T @ V  # (i, j), i <= j: k . (w_i x v_j) = (k x w_i) . v_j
         M[self._lower] = M.T[self._lower]
         return H + M
-
-    def column(self, i: int) -> np.ndarray:
-        """Column ``i`` of the tool's world-aligned linear Jacobian at the last point, (3,)."""
-        return np.asarray(self.J[:, i]).copy()
 
     def polish(self, x: np.ndarray, target: float | None, bounds: _Bounds) -> np.ndarray:
         """Newton steps (minimum norm) onto h = 0, and onto r = ``target`` unless None."""
@@ -677,6 +671,29 @@ class _Reach:
 
     R: float
     poses: tuple[np.ndarray, ...]
+
+
+def _offset(data: pin.Data, chain: _Chain) -> tuple[float, np.ndarray]:
+    """The tool origin's offset from joint 1's origin, the frame placed in ``data``.
+
+    Returns:
+        Along joint 1's axis [m], and across it (radial) [m], shape (3,).
+    """
+    d = data.oMf[chain.frame].translation - chain.point
+    along = float(chain.axis @ d)
+    return along, d - along * chain.axis
+
+
+def _reach_and_column(
+    model: pin.Model, chain: _Chain, q: np.ndarray, data: pin.Data, i: int
+) -> tuple[float, np.ndarray]:
+    """r(q) [m] and column ``i`` of the tool's world-aligned linear Jacobian at q, (3,).
+
+    What an :class:`_Evaluator` at q gives (its :meth:`~_Evaluator.reach` and ``J[:, i]``),
+    the same products, without what only the pose problems read.
+    """
+    J6 = pin.computeFrameJacobian(model, data, q, chain.frame, _LWA)
+    return float(np.linalg.norm(_offset(data, chain)[1])), np.asarray(J6[:3, i]).copy()
 
 
 def _max_reach(model: pin.Model, chain: _Chain, guess: np.ndarray) -> _Reach:
