@@ -328,7 +328,7 @@ def check_schema(
     Raises:
         InputError: (as ``error``) naming the key path, the value and what is allowed.
     """
-    top = valid is not None and isinstance(raw, Mapping) and set(schema) <= _TOP_LEVEL
+    top = valid is not None and _is_mapping(raw) and set(schema) <= _TOP_LEVEL
     # Over MAX_NODES values in all, the whole walk below refuses the document, as it would.
     if valid is not None and top and _size_beside(raw, valid) <= MAX_NODES:
         raw, schema, done = _prune(raw, valid, schema)
@@ -367,13 +367,13 @@ def _prune(raw: Any, valid: Any, schema: Any) -> tuple[Any, Any, bool]:
     if _passes_alone(raw, schema):
         return raw, schema, True
     if not (
-        isinstance(raw, Mapping)
-        and isinstance(schema, Mapping)
+        _is_mapping(raw)
+        and _is_mapping(schema)
         and set(schema) <= _TOP_LEVEL
         and schema.get("type", "object") == "object"
     ):
         return raw, schema, False
-    known = valid if isinstance(valid, Mapping) else {}
+    known = valid if _is_mapping(valid) else {}
     properties, extra = schema.get("properties", {}), schema.get("additionalProperties")
     kept, inner = {}, {}
     for key, value in raw.items():
@@ -401,7 +401,7 @@ def _passes_alone(value: Any, schema: Any) -> bool:
     False when unsure (another keyword, another type, a value that fails): the validator
     then decides, and words the error.
     """
-    if not isinstance(schema, Mapping) or not set(schema) <= _PLAIN:
+    if not _is_mapping(schema) or not set(schema) <= _PLAIN:
         return False
     kind = schema.get("type")
     if kind == "string":
@@ -470,13 +470,18 @@ def _check_keys(raw: Any, source: str, error: type[InputError], root: str) -> No
                     )
 
 
+def _is_mapping(value: Any) -> bool:
+    """isinstance(value, Mapping), a plain dict (parsed YAML, schemas) answered at once."""
+    return type(value) is dict or isinstance(value, Mapping)
+
+
 def _size(raw: Any) -> int:
     """How many values :func:`_walk` visits in a document (without building key paths)."""
     stack, seen = [raw], 0
     while stack:
         value = stack.pop()
         seen += 1
-        if isinstance(value, Mapping):
+        if _is_mapping(value):
             stack.extend(v for k, v in value.items() if isinstance(k, str))
         elif isinstance(value, list):
             stack.extend(value)
