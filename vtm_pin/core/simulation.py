@@ -134,8 +134,13 @@ class _Hybrid:
         self.stop = stop
         self.drive: DriveLaw = DriveOff() if stop is None else DriveHold()
         self.drive_on = np.full(n, stop is not None)
-        #: The motors' short-circuit braking, and per joint whether its motor is shorted now.
-        self.dynamic = short_circuit(robot) if stop is not None else None
+        #: The motors' short-circuit braking (the robot's, kept in its cache), and per joint
+        #: whether its motor is shorted now.
+        self.dynamic = (
+            robot.cache.get("short_circuit", lambda: short_circuit(robot))
+            if stop is not None
+            else None
+        )
         self.dynamic_on = np.zeros(n, dtype=bool)
         self.rule = TRANSITIONS[rule]
         self.rule_name = rule
@@ -143,7 +148,9 @@ class _Hybrid:
         self.baumgarte = (0.0, 0.0)
         self.data = full_data(robot)
         self.events: list[EventRecord | _RestLock] = []
-        self._labels = tuple(RowLabel(RowKind.JOINT, name) for name in robot.joints)
+        self._labels: tuple[RowLabel, ...] = robot.cache.get(
+            "joint_rows", lambda: tuple(RowLabel(RowKind.JOINT, name) for name in robot.joints)
+        )
         #: Built when first asked for (a stop's events at t = 0 replace it before that).
         self._phase: Phase | None = None
 
