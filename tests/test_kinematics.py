@@ -317,3 +317,35 @@ def test_body_motions_are_pinocchios_local_jacobians_velocities_and_bias_acceler
             ]:
                 scale = 1.0 + np.abs(theirs).max()
                 np.testing.assert_allclose(ours, theirs, rtol=0, atol=VEC_TOL * scale)
+
+
+@KERNEL_PATHS
+@pytest.mark.parametrize("name", [*SHIPPED, "tree"])
+def test_frame_motion_is_pinocchios_placements_and_tool_motion(name, compiled, monkeypatch):
+    """frame_motion (compiled, or NumPy's placements and tool motion) against Pinocchio's
+    forward kinematics sample by sample, on every shipped arm and the tree of every joint
+    type (a tool frame on a branch, sliding joints on its path)."""
+    monkeypatch.setattr(body_kernel, "AVAILABLE", compiled)
+    if name == "tree":
+        model, _ = every_joint_type()
+        arm = Robot(
+            "tree", "tree", model, tuple(model.names[1:]), np.ones(model.nv), tool_frame="tool"
+        )
+    else:
+        arm = robot(name)
+    qs, vs = random_states(arm.model, seed=17)
+    (R, p), positions, speeds = kinematics.frame_motion(arm, qs, vs)
+    R_ref, p_ref = pinocchio_placements(arm.model, qs)
+    np.testing.assert_allclose(R, R_ref, rtol=0, atol=VEC_TOL)
+    np.testing.assert_allclose(p, p_ref, rtol=0, atol=VEC_TOL)
+    fid = arm.model.getFrameId(arm.tool_frame)
+    ref_positions, ref_velocities = pinocchio_frame_motion(arm.model, fid, qs, vs)
+    np.testing.assert_allclose(positions, ref_positions, rtol=0, atol=VEC_TOL)
+    np.testing.assert_allclose(speeds, np.linalg.norm(ref_velocities, axis=1), rtol=0, atol=VEC_TOL)
+    # one sample, and a frame on the world (it stays where it is), as well
+    (R1, _), one, _ = kinematics.frame_motion(arm, qs[:1], vs[:1])
+    np.testing.assert_allclose(one, ref_positions[:1], rtol=0, atol=VEC_TOL)
+    assert R1.shape == (1, arm.model.njoints, 3, 3)
+    _, still, none = kinematics.frame_motion(arm, qs, vs, "universe")
+    np.testing.assert_array_equal(still, np.zeros((len(qs), 3)))
+    np.testing.assert_array_equal(none, np.zeros(len(qs)))

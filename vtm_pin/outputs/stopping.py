@@ -28,8 +28,7 @@ from ..physics.brakes import Brake, BrakeEventKind, BrakeMode
 from ..physics.kinematics import (
     cached_chain,
     compute_tool_jacobian,
-    compute_tool_motion,
-    joint_placements,
+    frame_motion,
     kinematics_key,
     tool_column_norms,
 )
@@ -290,8 +289,7 @@ def tool_motion(robot: Robot, result: SimulationResult, tool_frame: str | None) 
 
 def _motion(robot: Robot, q: np.ndarray, v: np.ndarray, tool_frame: str | None) -> ToolMotion:
     """The :class:`ToolMotion` of samples (q [rad], v [rad/s]), shape (k, n)."""
-    placements = joint_placements(robot, q)
-    path, speed = compute_tool_motion(robot, q, v, tool_frame, placements)
+    placements, path, speed = frame_motion(robot, q, v, tool_frame)
     return ToolMotion(placements, path, speed)
 
 

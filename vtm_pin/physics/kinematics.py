@@ -33,7 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..files.model_cache import ModelCache
-from . import body_kernel
+from . import body_kernel, motion_kernel
 from .robot import Robot
 
 _LWA = pin.LOCAL_WORLD_ALIGNED
@@ -394,6 +394,31 @@ def compute_tool_motion(
     positions = _origins(R, p, frame)
     velocities = _frame_velocity(chain, R, p, int(frame.parentJoint), positions, vs)
     return positions, np.sqrt(np.einsum("ki,ki->k", velocities, velocities))
+
+
+def frame_motion(
+    robot: Robot, q: np.ndarray, v: np.ndarray, tool_frame: str | None = None
+) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
+    """Every joint's placement and a frame's path and speed over samples (q, v), shape (k, n).
+
+    :func:`joint_placements` and :func:`compute_tool_motion` at once; with the ``fast``
+    extra, by :mod:`~vtm_pin.physics.motion_kernel` for a model whose joints the NumPy
+    kinematics take (the two agree to round-off).
+
+    Returns:
+        ``((R, p), positions, speeds)``: as :func:`joint_placements` and
+        :func:`compute_tool_motion` return them.
+    """
+    chain = cached_chain(robot)
+    if chain is not None and motion_kernel.runs():
+        _, frame = _frame(robot.model, robot, tool_frame)
+        offset = np.asarray(frame.placement.translation, dtype=float)
+        try:
+            return motion_kernel.frame_motion(chain, q, v, int(frame.parentJoint), offset)
+        except body_kernel.failures() as exc:  # Numba cannot run here: NumPy from now on
+            body_kernel.fall_back(exc)
+    placements = joint_placements(robot, q)
+    return placements, *compute_tool_motion(robot, q, v, tool_frame, placements)
 
 
 def _pinocchio_motion(

@@ -9,7 +9,8 @@ process): a worker's first 200 cases took ~0.6 s more than its next 200, in
   (:func:`vtm_pin.physics.arm_points.sample_arm_points`);
 - Numba (~0.2 s) and the compiled kernels' first calls (~0.3 s, loading the kernels from
   Numba's cache: :mod:`vtm_pin.physics.chain_dynamics`, :mod:`vtm_pin.physics.body_kernel`,
-  :mod:`vtm_pin.physics.arm_kernel`), with the ``fast`` extra.
+  :mod:`vtm_pin.physics.arm_kernel`, :mod:`vtm_pin.physics.motion_kernel`), with the ``fast``
+  extra.
 
 Everything here is an optimisation only: whatever fails is left for the workers, which meet
 it where they always did (a kernel that cannot run falls back to NumPy there, said once).
@@ -22,7 +23,7 @@ import contextlib
 import numpy as np
 import pinocchio as pin
 
-from ..physics import arm_kernel, body_kernel, chain_dynamics
+from ..physics import arm_kernel, body_kernel, chain_dynamics, motion_kernel
 from ..physics.arm_points import ArmPoints
 from ..physics.kinematics import joint_chain
 
@@ -65,6 +66,7 @@ def warm_kernels() -> bool:
     carried = (R[:, 1:], o[:, 1:])  # the joint that carries the point
     arm_kernel.largest_displacements(*carried, one - 1, one, points.groups, points.points, 0, 0)
     arm_kernel.fastest_speeds(R, o, o, points.groups, points.points)
+    motion_kernel.frame_motion(chain, q, q, 2, np.zeros(3))
     return True
 
 
