@@ -65,8 +65,7 @@ from matplotlib.figure import Figure
 import vtm_pin as vp
 from vtm_pin.core.batch import model_key
 from vtm_pin.core.simulation import simulate
-from vtm_pin.outputs.stopping import _rest_times as rest_times
-from vtm_pin.outputs.stopping import compute_stopping_report
+from vtm_pin.outputs.stopping import compute_stopping_report, rest_times
 from vtm_pin.physics.friction import Coulomb
 from vtm_pin.scene.scenario import build_scenario
 from vtm_pin.study.cases import Study, case_scenario, load_study

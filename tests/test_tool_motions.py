@@ -23,6 +23,7 @@ from vtm_pin.core.results import SimulationResult
 from vtm_pin.outputs.stopping import (
     _rest_times,
     compute_stopping_report,
+    rest_times,
     sample_figures,
     signal_row,
     tool_motion,
@@ -224,6 +225,7 @@ def test_rest_times_of_stacked_runs_follow_their_definition(runs) -> None:
     out = _rest_times(np.concatenate(ts), np.concatenate(vs), np.array(rests), firsts, counts_a)
     assert out.shape == (len(runs), 3)
     for r, (t, v, rest) in enumerate(zip(ts, vs, rests, strict=True)):
+        np.testing.assert_array_equal(rest_times(t, v, rest), out[r])  # one run alone
         for j in range(3):
             expected = rest_time_by_hand(list(t), list(v[:, j]), rest)
             # the same formula, term by term: equal to the bit (NaN: still moving)

@@ -496,6 +496,16 @@ def _holding_figures(
     return peak_hold, margin
 
 
+def rest_times(t: np.ndarray, v: np.ndarray, rest_speed: float) -> np.ndarray:
+    """Per column of ``v`` [rad/s], shape (T, n): when |v| falls below ``rest_speed`` for good.
+
+    As a stopping report has them (:attr:`SampleFigures.rest_times`) [s]; NaN where it does not
+    by the last sample. ``t``: the samples' times [s], shape (T,).
+    """
+    one = np.zeros(1, dtype=int)
+    return _rest_times(t, v, np.array([rest_speed]), one, np.array([len(t)]))[0]
+
+
 def _rest_times(
     t: np.ndarray, v: np.ndarray, rest_speed: np.ndarray, firsts: np.ndarray, counts: np.ndarray
 ) -> np.ndarray:
