@@ -81,7 +81,6 @@ class Phase:
             else []
         )
         self._signs = {j: self.modes[j].sign for _, j, _ in self._sliding}
-        self._full_data = full_data(robot)
         self._last_hold: tuple[float, bytes, np.ndarray] | None = None
         #: No torque acts: y is (q_f, v_f) only and the accumulators stay constant.
         self.constraints = tuple(constraints)
@@ -93,6 +92,11 @@ class Phase:
         self._no_torque = np.zeros(self.k)
         self._no_torque.flags.writeable = False
         self._impulse_index = 2 * self.k + WORKS + free
+
+    @property
+    def _full_data(self) -> pin.Data:
+        """The full model's Data (the robot's, made when first asked for: seldom in a batch)."""
+        return full_data(self.robot)
 
     @functools.cached_property
     def events(self) -> list[BrakeStateEvent]:

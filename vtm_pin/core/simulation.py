@@ -89,14 +89,13 @@ class _RestLock(NamedTuple):
     v: np.ndarray
     kind: LockKind
     robot: Robot
-    data: pin.Data
     reduced: bool
     labels: tuple[RowLabel, ...]
     activate: tuple[str, ...] = ()
 
     def record(self) -> EventRecord:
         """The lock's record."""
-        p = momentum(self.robot, self.data, self.q, self.v, self.reduced)
+        p = momentum(self.robot, full_data(self.robot), self.q, self.v, self.reduced)
         names = self.robot.joints
         return EventRecord(
             t=self.t,
@@ -146,13 +145,17 @@ class _Hybrid:
         self.rule_name = rule
         self.frames: list[FrameConstraint] = []
         self.baumgarte = (0.0, 0.0)
-        self.data = full_data(robot)
         self.events: list[EventRecord | _RestLock] = []
         self._labels: tuple[RowLabel, ...] = robot.cache.get(
             "joint_rows", lambda: tuple(RowLabel(RowKind.JOINT, name) for name in robot.joints)
         )
         #: Built when first asked for (a stop's events at t = 0 replace it before that).
         self._phase: Phase | None = None
+
+    @property
+    def data(self) -> pin.Data:
+        """The full model's Pinocchio Data (the robot's, made when first asked for)."""
+        return full_data(self.robot)
 
     @property
     def phase(self) -> Phase:
@@ -253,7 +256,6 @@ class _Hybrid:
                 v_minus,
                 kind,
                 self.robot,
-                self.data,
                 self.reduced,
                 self._labels,
             )

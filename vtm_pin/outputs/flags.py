@@ -224,29 +224,42 @@ def _gravity_bounds(robot: Robot) -> np.ndarray | None:
     chain = cached_chain(robot)
     if chain is None or not all(chain.revolute[1:]):
         return None
-    model = robot.model
-    count = len(chain.parents)
-    mass = np.array([inertia.mass for inertia in model.inertias])
-    subtree = mass.copy()  # M_k: the mass each joint carries
-    for j in range(count - 1, 0, -1):
-        subtree[chain.parents[j]] += subtree[j]
-    fixed = np.array([inertia.mass * inertia.lever for inertia in model.inertias])  # v_j [kg m]
-    for k in range(1, count):
-        fixed[chain.parents[k]] += subtree[k] * chain.translations[k]
-    turning = np.zeros(count)  # H_j: the bound of |h_j| [kg m]
-    for j in range(count - 1, 0, -1):
-        turning[j] += float(np.linalg.norm(fixed[j]))
-        turning[chain.parents[j]] += turning[j]
-    g = np.asarray(model.gravity.linear, dtype=float)
+    parents, factor, index = robot.cache.get(
+        "gravity_bound_factors", lambda: _bound_factors(robot), kinematic=True
+    )
+    inertias = robot.model.inertias
+    mass = [inertia.mass for inertia in inertias]
+    subtree = list(mass)  # M_k: the mass each joint carries [kg]
+    for j in range(len(mass) - 1, 0, -1):
+        subtree[parents[j]] += subtree[j]
+    fixed = np.array([inertia.mass * inertia.lever for inertia in inertias])  # v_j [kg m]
+    np.add.at(fixed, parents[1:], np.array(subtree[1:])[:, None] * chain.translations[1:])
+    norms = np.sqrt(np.einsum("ji,ji->j", fixed, fixed))
+    turning = norms.tolist()  # H_j: the bound of |h_j| [kg m], children added below
+    for j in range(len(mass) - 1, 0, -1):
+        turning[parents[j]] += turning[j]
+    children = np.array(turning) - norms  # the sum of H_k of each joint's children
+    across = fixed - np.einsum("ji,ji->j", fixed, chain.axes)[:, None] * chain.axes
     out = np.zeros(robot.nv)
-    for j in range(1, count):
-        axis = chain.axes[j]
-        across = fixed[j] - (fixed[j] @ axis) * axis
-        children = turning[j] - float(np.linalg.norm(fixed[j]))  # sum of H_k of j's children
-        world = chain.rotations[j] @ axis  # a joint on the base: its axis in the world
-        factor = np.linalg.norm(np.cross(g, world) if chain.parents[j] == 0 else g)
-        out[chain.index[j]] = float(factor) * (float(np.linalg.norm(across)) + children)
+    out[index] = (factor * (np.sqrt(np.einsum("ji,ji->j", across, across)) + children))[1:]
     return out
+
+
+def _bound_factors(robot: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What :func:`gravity_bounds` takes from the kinematics, kept in the robot's cache.
+
+    Returns:
+        Each joint's parent; |g x a_j| for a joint on the base (its axis in the world), |g|
+        for the others (joint 0, the world, first; unused); each joint's coordinate.
+    """
+    chain = cached_chain(robot)
+    assert chain is not None
+    parents = np.array(chain.parents)
+    g = np.asarray(robot.model.gravity.linear, dtype=float)
+    world = np.einsum("jab,jb->ja", chain.rotations, chain.axes)  # a base joint's axis
+    on_base = np.linalg.norm(np.cross(g, world), axis=1)
+    factor = np.where(parents == 0, on_base, np.linalg.norm(g))
+    return parents, factor, np.array(chain.index[1:])
 
 
 @functools.lru_cache(maxsize=256)

@@ -50,9 +50,9 @@ from .kinematics import (
     body_velocities,
     cross,
     joint_placements,
+    kinematic_data,
     kinematics_key,
     numpy_chain,
-    pinocchio_data,
 )
 from .robot import Robot
 
@@ -614,7 +614,7 @@ def point_speeds(robot: Robot, points: ArmPoints, q: np.ndarray, v: np.ndarray) 
     in its own frame (Pinocchio's ``data.v``); a rotation to world axes keeps its length.
     """
     model = robot.model
-    data = pinocchio_data(robot)
+    data = kinematic_data(robot)
     pin.forwardKinematics(model, data, np.asarray(q, dtype=float), np.asarray(v, dtype=float))
     groups = points.groups
     motions = [data.v[int(joint)] for joint in groups.joints]

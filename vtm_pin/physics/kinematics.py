@@ -208,6 +208,16 @@ def pinocchio_data(robot: Robot) -> pin.Data:
     return robot.cache.get("data", robot.model.createData)
 
 
+def kinematic_data(robot: Robot) -> pin.Data:
+    """A Pinocchio ``Data`` for the robot's kinematics only (placements, Jacobians, rates).
+
+    One for the models that differ in their bodies' inertias only (a payload's variants:
+    a kinematic entry of the cache), not one per model: a study drawing a payload per case
+    would make one a case (~70 us). Every call computes what it reads.
+    """
+    return robot.cache.get("kinematic_data", robot.model.createData, kinematic=True)
+
+
 def joint_placements(model: pin.Model | Robot, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Every joint's placement in the world (Pinocchio's ``data.oMi``) at many configurations.
 
@@ -452,7 +462,7 @@ def compute_tool_jacobian(robot: Robot, q: np.ndarray, tool_frame: str | None = 
     impacts), where one Pinocchio call is faster than the NumPy steps.
     """
     model = robot.model
-    data = pinocchio_data(robot)
+    data = kinematic_data(robot)
     fid = model.getFrameId(tool_frame or robot.tool_frame)
     qs = np.asarray(q, dtype=float)
     J = [pin.computeFrameJacobian(model, data, qi, fid, _LWA)[:3] for qi in np.atleast_2d(qs)]

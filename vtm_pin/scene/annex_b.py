@@ -62,7 +62,7 @@ import pinocchio as pin
 from scipy.optimize import least_squares, minimize
 
 from ..exceptions import ConditionsError, excerpt
-from ..physics.kinematics import pinocchio_data
+from ..physics.kinematics import kinematic_data
 from ..physics.robot import Robot
 
 #: Test directions a scenario may ask for.
@@ -297,7 +297,7 @@ def compute_test_state(
     guess = _clip(model, _as_q(model, q_guess))
     q = _extension_pose(model, chain, conditions.extension, guess)
     R = _max_reach(model, chain, guess).R
-    reach, column = _reach_and_column(model, chain, q, pinocchio_data(robot), i)
+    reach, column = _reach_and_column(model, chain, q, kinematic_data(robot), i)
     sign, vertical = _direction(model, column, conditions.direction)
     speed = sign * conditions.speed * top
     v = np.zeros(model.nv)
