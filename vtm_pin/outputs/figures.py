@@ -163,7 +163,8 @@ def stop_figures(scenario: Any, result: SimulationResult, report: StoppingReport
     )
     # The tool's origin is one of the arm's points: S_arm >= S_s, but the two are computed
     # apart and may differ in the last bit; keep the order exact.
-    arm = dataclasses.replace(arm, distance=max(arm.distance, reach))
+    if reach > arm.distance:
+        arm = dataclasses.replace(arm, distance=reach)
     # S_s of S_p is the arm's largest displacement (>= the tool's): the part of the arm that
     # reaches a person first is not always the tool, and a smaller S_s is the unsafe side.
     v_r = motion.arm_speed if motion is not None else None

@@ -9,11 +9,11 @@ the motion before the brakes engage.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -314,7 +314,7 @@ def tool_motions(
         tool = robot.model.frames[robot.model.getFrameId(frame or robot.tool_frame)]
         key = (kinematics_key(robot), int(tool.parentJoint), tool.placement.translation.tobytes())
         groups.setdefault(key, []).append(r)
-    out: list[ToolMotion | None] = [None] * len(runs)
+    parts: list[tuple[Any, ...]] = [()] * len(runs)  # each run's motion but its arm's
     for members in groups.values():
         robot, _, frame = runs[members[0]]
         q = np.concatenate([runs[r][1].q[rows[r] :] for r in members])
@@ -332,21 +332,26 @@ def tool_motions(
         for c, (r, first, stop) in enumerate(zip(members, firsts, ends, strict=True)):
             mine = slice(int(first), int(stop))
             column = None if norms is None else norms[c]
-            out[r] = ToolMotion(
-                (R[mine], p[mine]), path[mine], speed[mine], None, None, column, figures[c]
-            )
-    done = [m for m in out if m is not None]
-    return _at_the_arm(done, runs, rows)
+            parts[r] = ((R[mine], p[mine]), path[mine], speed[mine], column, figures[c])
+    arms, speeds = _at_the_arm([part[0] for part in parts], runs, rows)
+    return [
+        ToolMotion(placements, path, speed, arm, arm_speed, column, figures)
+        for (placements, path, speed, column, figures), arm, arm_speed in zip(
+            parts, arms, speeds, strict=True
+        )
+    ]
 
 
 def _at_the_arm(
-    motions: list[ToolMotion],
+    placements: Sequence[tuple[np.ndarray, np.ndarray]],
     runs: Sequence[tuple[Robot, SimulationResult, str | None]],
     rows: Sequence[int],
-) -> list[ToolMotion]:
-    """``motions`` with the arm's largest displacement and fastest point at the signal.
+) -> tuple[list[ArmDisplacement | None], list[float | None]]:
+    """Each run's arm's largest displacement and fastest point's speed at the signal [m/s].
 
-    Those of the runs that share one set of arm points together.
+    From the joints' ``placements`` at its samples from the signal on; those of the runs
+    that share one set of arm points together; None for a model whose joints the NumPy
+    kinematics do not take.
     """
     groups: dict[int, list[int]] = {}
     points = {}
@@ -356,16 +361,17 @@ def _at_the_arm(
         mine = sample_arm_points(robot)
         points[id(mine)] = mine
         groups.setdefault(id(mine), []).append(r)
-    out = list(motions)
+    arms: list[ArmDisplacement | None] = [None] * len(runs)
+    speeds: list[float | None] = [None] * len(runs)
     for key, members in groups.items():
-        arms = max_displacements(points[key], [motions[r].placements for r in members])
-        R = np.stack([motions[r].placements[0][0] for r in members])
-        p = np.stack([motions[r].placements[1][0] for r in members])
+        found = max_displacements(points[key], [placements[r] for r in members])
+        R = np.stack([placements[r][0][0] for r in members])
+        p = np.stack([placements[r][1][0] for r in members])
         v = np.stack([runs[r][1].v[rows[r]] for r in members])
-        speeds = fastest_point_speeds(runs[members[0]][0], points[key], (R, p), v)
-        for r, arm, speed in zip(members, arms, speeds, strict=True):
-            out[r] = dataclasses.replace(motions[r], arm=arm, arm_speed=float(speed))
-    return out
+        fastest = fastest_point_speeds(runs[members[0]][0], points[key], (R, p), v)
+        for r, arm, speed in zip(members, found, fastest, strict=True):
+            arms[r], speeds[r] = arm, float(speed)
+    return arms, speeds
 
 
 def compute_stopping_report(
