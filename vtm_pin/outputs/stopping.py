@@ -300,9 +300,10 @@ def tool_motions(
 
     Runs whose robots place their joints alike (:func:`~vtm_pin.physics.kinematics.
     kinematics_key`: payload variants of one arm) and whose tool frames sit alike are computed
-    together: their samples stacked, one pass of the NumPy forward kinematics for all (a
-    study case has ~80 samples, where one pass per case costs mostly its fixed overhead). The
-    kinematics are sample by sample, so each run's motion is its own pass's to round-off. So
+    together: their samples stacked, one pass of the forward kinematics for all
+    (:func:`~vtm_pin.physics.kinematics.frame_motion`; a study case has ~80 samples, where one
+    pass per case costs mostly its fixed overhead), and their :class:`SampleFigures` with it.
+    The kinematics are sample by sample, so each run's motion is its own pass's to round-off. So
     are what a report reads at the signal (the tool's Jacobian, the arm's points' speeds)
     and the arm's largest displacement (:attr:`ToolMotion.arm`), for the runs whose robots
     share their arm points. Those three are left None for a model whose joints the NumPy
