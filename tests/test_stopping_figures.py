@@ -20,6 +20,7 @@ Tolerances:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -44,6 +45,7 @@ from vtm_pin.outputs.flags import (
 from vtm_pin.outputs.stopping import compute_stopping_report
 from vtm_pin.physics.arm_points import sample_arm_points
 from vtm_pin.physics.brakes import BrakeEventKind, BrakeMode
+from vtm_pin.physics.friction import Coulomb
 from vtm_pin.physics.kinematics import NUMPY_FROM
 from vtm_pin.physics.payload import Payload, attach_payload
 
@@ -395,7 +397,8 @@ def test_the_holding_flags_are_those_of_the_sampled_loads_with_or_without_the_bo
     monkeypatch.setattr(flags, "gravity_loads", lambda *a: sampled.append(1) or loads(*a))
     quick = holding_flags(scenario.robot, scenario.brakes, result, report)
     monkeypatch.setattr(flags, "gravity_bounds", lambda arm: None)
-    full = holding_flags(scenario.robot, scenario.brakes, result, report)
+    fresh = dataclasses.replace(scenario.robot)  # a cache of its own: nothing kept from above
+    full = holding_flags(fresh, scenario.brakes, result, report)
     assert [(f.kind, f.message, f.joints) for f in quick] == [
         (f.kind, f.message, f.joints) for f in full
     ]
@@ -406,3 +409,32 @@ def test_the_holding_flags_are_those_of_the_sampled_loads_with_or_without_the_bo
             "brake_cannot_hold",
             "brake_cannot_stop",
         }
+
+
+@dataclasses.dataclass(frozen=True)
+class TabledCoulomb(Coulomb):
+    """A caller's own friction law with an unhashable field (a table of measurements)."""
+
+    table: list = dataclasses.field(default_factory=list)
+
+
+def test_brakes_of_an_unhashable_friction_law_are_checked_not_kept():
+    """The holding flags keep their brakes' torques by the brakes; a law that cannot be a key
+    is checked each time, with the same flags as its hashable twin."""
+    raw = shipped("ur10_annex_b", duration=0.4)
+    scenario = vp.build_scenario(raw, source="tabled", base_dir=SCENARIOS)
+    result = vp.run_scenario(scenario)
+    report = compute_stopping_report(scenario.robot, result, scenario.brakes, scenario.tool_frame)
+    weak = tuple(
+        dataclasses.replace(b, friction=Coulomb(0.01, 0.012)) for b in scenario.brakes
+    )  # far too weak: both flags
+    tabled = tuple(
+        dataclasses.replace(b, friction=TabledCoulomb(0.01, 0.012, table=[1.0])) for b in weak
+    )
+    with pytest.raises(TypeError):
+        hash(tabled)
+    expected = holding_flags(scenario.robot, weak, result, report)
+    assert {f.kind for f in expected} == {"brake_cannot_hold", "brake_cannot_stop"}
+    for _ in range(2):
+        got = holding_flags(scenario.robot, tabled, result, report)
+        assert [(f.kind, f.message) for f in got] == [(f.kind, f.message) for f in expected]
