@@ -13,7 +13,7 @@ import dataclasses
 import heapq
 import time
 from collections.abc import Callable, Generator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, NamedTuple
 
@@ -133,10 +133,11 @@ class _Hybrid:
         self.stop = stop
         self.drive: DriveLaw = DriveOff() if stop is None else DriveHold()
         self.drive_on = np.full(n, stop is not None)
-        #: The motors' short-circuit braking (the robot's, kept in its cache), and per joint
-        #: whether its motor is shorted now.
+        #: The motors' short-circuit braking (the robot's, kept in its cache with the entries
+        #: its payload variants share: their drives and gear ratios are its own), and per
+        #: joint whether its motor is shorted now.
         self.dynamic = (
-            robot.cache.get("short_circuit", lambda: short_circuit(robot))
+            robot.cache.get("short_circuit", lambda: short_circuit(robot), kinematic=True)
             if stop is not None
             else None
         )
@@ -147,7 +148,9 @@ class _Hybrid:
         self.baumgarte = (0.0, 0.0)
         self.events: list[EventRecord | _RestLock] = []
         self._labels: tuple[RowLabel, ...] = robot.cache.get(
-            "joint_rows", lambda: tuple(RowLabel(RowKind.JOINT, name) for name in robot.joints)
+            "joint_rows",
+            lambda: tuple(RowLabel(RowKind.JOINT, name) for name in robot.joints),
+            kinematic=True,
         )
         #: Built when first asked for (a stop's events at t = 0 replace it before that).
         self._phase: Phase | None = None
@@ -682,21 +685,23 @@ class TimeKind(IntEnum):
     KINK = 4  # a ramp ends: the torques have a kink, the integrator restarts there
 
 
-@dataclass(frozen=True, order=True)
-class TimeEvent:
+class TimeEvent(NamedTuple):
     """A time event of the hybrid loop, ordered by time, then kind, then creation.
+
+    A tuple: the heap compares its events in C. ``order`` differs between the events of a
+    run, so ``payload`` is never compared.
 
     Attributes:
         t: Time [s].
         kind: What happens.
-        count: Creation order (ties at equal time and kind).
+        order: Creation order (ties at equal time and kind).
         payload: The lock event or the joint index the kind needs.
     """
 
     t: float
     kind: TimeKind
-    count: int
-    payload: LockEvent | int | None = field(default=None, compare=False)
+    order: int
+    payload: LockEvent | int | None = None
 
 
 #: Most brake state events (a joint reaching rest, a stuck joint slipping) in one run: a
@@ -760,7 +765,7 @@ class _Trace:
         }
         self.sizes: list[int] = []
         self.free: list[np.ndarray] = []  # a row per block
-        self.modes: list[tuple[int, ...]] = []  # a row per block
+        self.modes: list[bytes] = []  # a row per block, a byte a mode
         self.drift: list[tuple[int, np.ndarray]] = []  # (first sample, drift) of some blocks
         self.samples = 0
         self._all_free = np.ones(n, dtype=bool)
@@ -786,7 +791,7 @@ class _Trace:
         """The free mask and modes of ``size`` samples (and their constraint drift)."""
         self.sizes.append(size)
         self.free.append(free)
-        self.modes.append(tuple(modes))
+        self.modes.append(bytes(modes))
         if drift is not None:
             self.drift.append((self.samples, drift))
         self.samples += size
@@ -863,13 +868,14 @@ class _Trace:
         for first, block in self.drift:
             drift[first : first + len(block)] = block
         work = rows["extras"]
+        modes_rows = np.frombuffer(b"".join(self.modes), np.int8).reshape(len(self.modes), self.n)
         return SimulationResult(
             joints=robot.joints,
             t=rows["t"],
             q=rows["q"],
             v=rows["v"],
             free=np.repeat(np.array(self.free), sizes, axis=0),
-            modes=np.repeat(np.array(self.modes, dtype=np.int8), sizes, axis=0),
+            modes=np.repeat(modes_rows, sizes, axis=0),
             brake_work=work[:, 0],
             drive_work=work[:, 1],
             short_circuit_work=work[:, 2],
