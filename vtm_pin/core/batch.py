@@ -90,7 +90,7 @@ from ..numerics.integrators.dop853 import _Grid
 from ..numerics.integrators.fixed_step import locate
 from ..numerics.transitions.recursive import weightless
 from ..physics import body_kernel, chain_dynamics
-from ..physics.brakes import REST_RATE, ROUNDOFF, BrakeMode, StateEventKind
+from ..physics.brakes import REST_RATE, ROUNDOFF, StateEventKind
 from ..physics.drives import short_circuit_torque
 from ..physics.friction import Coulomb, Viscous
 from ..physics.kinematics import JointChain, body_motions, cached_chain, cross, joint_chain
@@ -738,20 +738,23 @@ class BatchEngine:
         machine = phase.machine  # type: ignore[attr-defined]
         if machine is None:
             return
-        modes, engaged = phase.modes, phase.engaged  # type: ignore[attr-defined]
+        engaged = phase.engaged  # type: ignore[attr-defined]
+        lanes.engaged[b, list(machine.brakes)] = 0.0
         lanes.braked[b] = False
-        for j in machine.brakes:
-            lanes.engaged[b, j] = engaged.get(j, 0.0)
-            lanes.braked[b, j] = j in engaged
-            if modes[j].sliding and not lanes.locked[b, j]:
-                lanes.sign[b, j] = modes[j].sign
-        for index, (kind, j, direction) in enumerate(phase.event_specs):  # type: ignore[attr-defined]
-            lanes.event_index[b, j] = index
-            lanes.event_dir[b, j] = direction
-            rest = kind is StateEventKind.ZERO_VELOCITY
-            lanes.event_kind[b, j] = 1 if rest else 2
-            if not rest:
-                assert modes[j] is BrakeMode.STUCK
+        if engaged:
+            lanes.engaged[b, list(engaged)] = list(engaged.values())
+            lanes.braked[b, list(engaged)] = True
+        signs = phase.sliding_signs  # type: ignore[attr-defined]
+        if signs:  # the free joints sliding
+            lanes.sign[b, list(signs)] = list(signs.values())
+        specs = phase.event_specs  # type: ignore[attr-defined]
+        if specs:  # each joint's event: its index, crossing, 1 at rest or 2 slipping
+            kinds, joints, directions = zip(*specs, strict=True)
+            lanes.event_index[b, joints] = range(len(joints))
+            lanes.event_dir[b, joints] = directions
+            lanes.event_kind[b, joints] = [
+                1 if kind is StateEventKind.ZERO_VELOCITY else 2 for kind in kinds
+            ]
 
     def _first_step(self, lanes: _Lanes, rows: np.ndarray) -> np.ndarray:
         """Hairer's initial step guess per lane, as DOP853's (one more evaluation)."""

@@ -66,7 +66,7 @@ class Phase:
         self.machine = brakes
         self.modes = tuple(brakes.modes) if brakes else (BrakeMode.FREE,) * robot.nv
         self.engaged = dict(brakes.engaged) if brakes else {}
-        n = robot.nv
+        n = topology.nv
         free = topology.free
         self.k = topology.n_free
         self.drive = (DriveOff() if drive is None else drive).bind(free)
@@ -80,7 +80,8 @@ class Phase:
             if brakes
             else []
         )
-        self._signs = {j: self.modes[j].sign for _, j, _ in self._sliding}
+        #: The sliding free joints' directions (+1 forward, -1 backward), by joint index.
+        self.sliding_signs = {j: self.modes[j].sign for _, j, _ in self._sliding}
         self._last_hold: tuple[float, bytes, np.ndarray] | None = None
         #: No torque acts: y is (q_f, v_f) only and the accumulators stay constant.
         self.constraints = tuple(constraints)
@@ -88,10 +89,19 @@ class Phase:
         self._powered = bool(np.count_nonzero(self._drive_f))
         self._drives = self._powered or self.dynamic is not None
         self.passive = not self._drives and not self._sliding and not self.constraints
-        # Per-call constants of the right-hand side: no torque, and where the impulses go.
-        self._no_torque = np.zeros(self.k)
-        self._no_torque.flags.writeable = False
-        self._impulse_index = 2 * self.k + WORKS + free
+
+    # Per-call constants of the scalar right-hand side, made when first asked for (the batched
+    # engine asks for none): no torque, and where the impulses go in dy/dt.
+
+    @functools.cached_property
+    def _no_torque(self) -> np.ndarray:
+        zero = np.zeros(self.k)
+        zero.flags.writeable = False
+        return zero
+
+    @functools.cached_property
+    def _impulse_index(self) -> np.ndarray:
+        return 2 * self.k + WORKS + self.topology.free
 
     @property
     def _full_data(self) -> pin.Data:
@@ -173,7 +183,9 @@ class Phase:
             ratio = self.robot.gear_ratio
             for f, j, brake in self._sliding:
                 elapsed = t - self.engaged[j]
-                tau_brake[f] = kinetic_torque(brake, self._signs[j], elapsed, v_f[f], ratio[j])
+                tau_brake[f] = kinetic_torque(
+                    brake, self.sliding_signs[j], elapsed, v_f[f], ratio[j]
+                )
         return tau_drive, tau_short, tau_brake
 
     def _rhs(self, t: float, y: np.ndarray) -> np.ndarray:
