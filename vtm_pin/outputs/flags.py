@@ -425,7 +425,8 @@ def payload_flags(robot: Robot, payload: Payload | None) -> list[Flag]:
             )
         )
     length = arm_length(robot)
-    offset = float(np.linalg.norm(payload.com))
+    com = np.asarray(payload.com, dtype=float)
+    offset = math.sqrt(float(com.dot(com)))  # np.linalg.norm's own sum, without its checks
     if offset > length:
         flags.append(
             Flag(
@@ -463,8 +464,8 @@ def speed_flag(
     The bound is sum_j |J_j(q_signal)| v_lim,j, the tool speed of every joint at its URDF
     velocity limit in the worst combination; robots without velocity limits are not checked.
     """
-    limits = np.asarray(robot.model.velocityLimit, dtype=float)
-    if not np.all(np.isfinite(limits) & (limits > 0.0)):
+    limits = robot.cache.get("velocity_limits", lambda: _velocity_limits(robot), kinematic=True)
+    if limits is None:
         return None
     norms = report.motion.column_norms if report.motion is not None else None
     if norms is None:
@@ -483,6 +484,15 @@ def speed_flag(
         value=report.tcp_peak_speed,
         limit=bound,
     )
+
+
+def _velocity_limits(robot: Robot) -> np.ndarray | None:
+    """The joints' URDF velocity limits [rad/s or m/s] (read only); None unless all are > 0."""
+    limits = np.array(robot.model.velocityLimit, dtype=float)
+    if not np.all(np.isfinite(limits) & (limits > 0.0)):
+        return None
+    limits.flags.writeable = False
+    return limits
 
 
 def case_flags(

@@ -134,7 +134,9 @@ class StoppingReport:
     def moving(self) -> tuple[str, ...]:
         """Joints still moving (above the rest speed) at the end of the run."""
         return tuple(
-            name for name, t in zip(self.names, self.stop_times, strict=True) if not np.isfinite(t)
+            name
+            for name, t in zip(self.names, self.stop_times.tolist(), strict=True)
+            if not math.isfinite(t)
         )
 
     @functools.cached_property
