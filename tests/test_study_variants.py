@@ -8,11 +8,14 @@ and checked whole, ``valid=None``, as a fresh scenario) and compare what comes o
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vtm_pin.scene import scenario as scenario_module
 from vtm_pin.scene.scenario import SCENARIOS_DIR, build_scenario
@@ -188,3 +191,39 @@ def test_a_case_copies_only_what_its_axes_set(monkeypatch: pytest.MonkeyPatch) -
     fresh = case_scenario(study.base, case)
     containers = [k for k, v in fresh.items() if isinstance(v, (dict, list))]
     assert fresh == raw and all(fresh[k] is not study.base[k] for k in containers)
+
+
+_LEAVES = st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text()
+_DOCUMENTS = st.recursive(
+    _LEAVES | st.dates(),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=3), inner),
+    max_leaves=20,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(document=_DOCUMENTS, alias=st.booleans())
+def test_the_copy_of_a_touched_value_is_deepcopys(document: Any, alias: bool) -> None:
+    """A case's touched values are copied as copy.deepcopy copies them (hypothesis, 200 draws).
+
+    Equal values, no mapping or list shared with the base, a YAML alias (one object twice)
+    still one object, and leaves of other types (dates) copied as deepcopy copies them.
+    """
+    base = {"a": {"x": document, "y": [document, 1]}, "b": document}
+    if alias:
+        base["a"]["z"] = base["a"]["y"]
+    mine = cases_module._variant(base, [("a",)])
+    theirs = copy.deepcopy(base)
+    assert mine == theirs and mine["b"] is base["b"]
+
+    def containers(value: Any) -> list[Any]:
+        if isinstance(value, dict):
+            return [value, *(c for item in value.values() for c in containers(item))]
+        if isinstance(value, list):
+            return [value, *(c for item in value for c in containers(item))]
+        return []
+
+    original = {id(c) for c in containers(base["a"])}
+    assert not original & {id(c) for c in containers(mine["a"])}
+    if alias:
+        assert mine["a"]["z"] is mine["a"]["y"]
