@@ -951,29 +951,32 @@ class BatchEngine:
         rested: dict[int, int] = {}  # the ends located across the lanes
         rests = self._locate_rests(lanes, sub, fired, F, part.h) if fired.any() else {}
         self.lane_python["batched_locations"] += len(rests)
-        for i, b in enumerate(sub):
-            run = runs[int(b)]
-            t = float(lanes.t[b])
-            if fired[i].any():
+        starts = lanes.t[sub].tolist()
+        ends_at = t_new.tolist()
+        for i, (b, t, any_fired) in enumerate(
+            zip(sub.tolist(), starts, fired.any(axis=1).tolist(), strict=True)
+        ):
+            run = runs[b]
+            if any_fired:
                 try:
                     found = rests.get(i)
-                    if found is None and not self._sync(lanes, run, int(b)):
+                    if found is None and not self._sync(lanes, run, b):
                         continue
                     tau, index = found or self._locate(
-                        lanes, run, int(b), F[i], float(part.h[i]), fired[i]
+                        lanes, run, b, F[i], float(part.h[i]), fired[i]
                     )
                 except Exception as exc:
                     self.advance(run, error=_as_vtm_error(exc))
                     continue
                 until = t + tau - (run.grid.slack if run.grid is not None else 0.0)
-                count = _grid_times(lanes, int(b), run.grid, until, times)
+                count = _grid_times(lanes, b, run.grid, until, times)
                 times.append(t + tau)
                 owners.extend([i] * (count + 1))
-                ends[int(b)] = index
+                ends[b] = index
                 if i in rests:
-                    rested[int(b)] = index
+                    rested[b] = index
             else:
-                owners.extend([i] * _grid_times(lanes, int(b), run.grid, float(t_new[i]), times))
+                owners.extend([i] * _grid_times(lanes, b, run.grid, ends_at[i], times))
         if owners:
             self._store_samples(lanes, runs, sub, part, F, np.array(owners, dtype=int), times)
         for b, event in ends.items():
