@@ -519,3 +519,22 @@ def test_graphs_drawn_in_a_process_of_their_own_are_the_same_files(grid, report,
     again = write_study_report(tmp_path, summary(), grid, images)
     assert again == written
     assert (tmp_path / "report.html").read_text() == (folder / "report.html").read_text()
+
+
+@pytest.mark.parametrize("processes", [2, 3, 4])
+def test_graphs_drawn_in_shares_are_the_one_process_graphs_in_order(grid, report, processes):
+    """A study on n workers draws its graphs in n processes, a share each
+    (`vtm_pin.study.runner._images`): merged, the same PNG bytes under the same names in the
+    same order as one process draws them (the grid has three; with four processes one
+    draws none)."""
+    from vtm_pin.study.report import merge_shares, stopping_images
+
+    folder, written = report
+    alone = stopping_images(grid, "ur10")
+    shares = [stopping_images(grid, "ur10", (k, processes)) for k in range(processes)]
+    assert sum(len(share) for share in shares) == len(alone) == 3
+    merged = merge_shares(shares)
+    assert list(merged) == list(alone)
+    assert merged == alone
+    for name, data in merged.items():
+        assert data == (folder / name).read_bytes(), name

@@ -951,13 +951,11 @@ class BatchEngine:
         rested: dict[int, int] = {}  # the ends located across the lanes
         rests = self._locate_rests(lanes, sub, fired, F, part.h) if fired.any() else {}
         self.lane_python["batched_locations"] += len(rests)
-        starts = lanes.t[sub].tolist()
-        ends_at = t_new.tolist()
-        for i, (b, t, any_fired) in enumerate(
-            zip(sub.tolist(), starts, fired.any(axis=1).tolist(), strict=True)
-        ):
+        starts, ends_at = lanes.t[sub].tolist(), t_new.tolist()
+        any_fired: list[bool] = np.asarray(fired.any(axis=1)).tolist()
+        for i, (b, t, some) in enumerate(zip(sub.tolist(), starts, any_fired, strict=True)):
             run = runs[b]
-            if any_fired:
+            if some:
                 try:
                     found = rests.get(i)
                     if found is None and not self._sync(lanes, run, b):
