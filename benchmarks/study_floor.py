@@ -2,7 +2,8 @@
 
 Runs the first ``--cases`` samples of a study (default ``studies/ur10_envelope.yaml``) in this
 process, one worker's way; by default as many as one batch of the target's study,
-``min(BATCH_CASES, total / (4 x workers))``, 1,250 for 10,000 cases on 2 workers. It reports
+``min(BATCH_CASES, total / (4 x workers))``, 1,250 for 10,000 cases on 2 workers (the study's
+last round, 2,500 cases there, runs in halves: :func:`vtm_pin.study.runner._chunks`). It reports
 the records' mean build, simulate and report times (their sum is what a worker spends) [ms] from
 :func:`vtm_pin.study.runner.run_cases` (batched engine, one chunk), and the batched engine's
 states and Pinocchio passes per case from :func:`vtm_pin.core.batch.run_many` on the same cases. It

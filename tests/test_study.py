@@ -15,6 +15,8 @@ import pandas as pd
 import pytest
 import yaml
 from conftest import UR_JOINTS
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import vtm_pin as vp
 from vtm_pin.cli import main
@@ -420,3 +422,30 @@ def test_a_bad_scheduler_fails_fast_and_writes_nothing(tmp_path: Path, address: 
     assert info.value.key == "--scheduler"
     assert time.monotonic() - begin < 20.0  # CONNECT_TIMEOUT is 10 s
     assert not (tmp_path / "out").exists()
+
+
+@settings(max_examples=200, deadline=None)
+@given(count=st.integers(0, 30_000), workers=st.integers(1, 16))
+def test_a_study_is_cut_into_batches_with_a_last_round_in_halves(count: int, workers: int) -> None:
+    """`_chunks` (hypothesis, 200 draws): every case once, in order; batches of a quarter of a
+    worker's share (at most BATCH_CASES); with several workers, the last round (one batch a
+    worker and what is left over) in halves where a half keeps TAIL_CASES or more; the scalar
+    engine case by case."""
+    from vtm_pin.study.runner import BATCH_CASES, TAIL_CASES, _chunks
+
+    tasks = list(range(count))
+    chunks = _chunks(tasks, workers, "batched")  # type: ignore[arg-type]
+    assert [t for chunk in chunks for t in chunk] == tasks
+    assert all(chunks)
+    size = max(1, min(BATCH_CASES, -(-count // (4 * workers))))
+    half = -(-size // 2)
+    halved = workers > 1 and half >= TAIL_CASES
+    step = half if halved else size
+    sizes = [len(chunk) for chunk in chunks]
+    head = [n for n in sizes if n > step]  # whole batches, then the last round's pieces
+    assert all(n == size for n in head) and sizes[: len(head)] == head
+    tail = sizes[len(head) :]
+    assert all(n == step for n in tail[:-1]) and (not tail or tail[-1] <= step)
+    if halved and count > workers * size:  # the last round: one batch a worker at least
+        assert workers * size <= sum(tail) < (workers + 1) * size
+    assert [len(c) for c in _chunks(tasks, workers, "scalar")] == [1] * count  # type: ignore[arg-type]

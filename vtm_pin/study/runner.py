@@ -662,15 +662,30 @@ IMAGE_PROCESSES = 3
 BATCH_CASES = 2500
 
 
+#: Fewest cases in a batch of a study's last round (:func:`_chunks`): smaller batches share
+#: less of their lanes' work (312-case batches cost ~20 % more a UR10 case than 1,250-case
+#: ones; 625-case ones the same within the noise).
+TAIL_CASES = 500
+
+
 def _chunks(tasks: Sequence[CaseTask], workers: int, engine: str) -> list[list[CaseTask]]:
     """The tasks in the pieces a worker runs at once: single cases, or batches.
 
     Batches are a quarter of a worker's share (at most :data:`BATCH_CASES`): the workers stay
-    evenly loaded, and an interruption loses at most the batches under way.
+    evenly loaded, and an interruption loses at most the batches under way. The last round
+    (one batch a worker, and what is left over) is cut in halves of at least
+    :data:`TAIL_CASES` (the last one may be less): a worker that runs
+    faster than the others (the machine's cores are not alike) takes more of the end instead
+    of waiting for them (a 10,000-case study on 2 workers: one had waited ~0.9 s of ~12 s).
     """
     size = 1 if engine == "scalar" else min(BATCH_CASES, math.ceil(len(tasks) / (4 * workers)))
     size = max(size, 1)
-    return [list(tasks[i : i + size]) for i in range(0, len(tasks), size)]
+    half = math.ceil(size / 2)
+    tail = workers * size if half >= TAIL_CASES and workers > 1 else 0
+    split = max(len(tasks) - tail, 0) // size * size  # whole batches before the last round
+    head = [list(tasks[i : i + size]) for i in range(0, split, size)]
+    step = half if tail else size
+    return head + [list(tasks[i : i + step]) for i in range(split, len(tasks), step)]
 
 
 def _execute(
