@@ -529,7 +529,7 @@ def test_graphs_drawn_in_shares_are_the_one_process_graphs_in_order(grid, report
     draws none)."""
     from vtm_pin.study.report import merge_shares, stopping_images
 
-    folder, written = report
+    folder, _ = report
     alone = stopping_images(grid, "ur10")
     shares = [stopping_images(grid, "ur10", (k, processes)) for k in range(processes)]
     assert sum(len(share) for share in shares) == len(alone) == 3
