@@ -27,6 +27,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +36,11 @@ from pathlib import Path
 TARGET = 5.0
 #: The frame every measured sample is under (the child's measured batch).
 MEASURED = "_measured"
+#: The child's line that gives its measured batches' time [s].
+SAMPLED = "sampled seconds: "
+#: Sampling that slows the cases by more than this factor skews the shares (py-spy at 1,000
+#: samples a second tripled a batch's time here and put half of it in the build) [-].
+MAX_SLOWDOWN = 1.5
 #: Frames of a sample that is not the cases' own work: imports, a kernel's first load.
 NOT_MEASURED = ("_find_and_load", "_compiled")
 #: A case's parts, in the order a sample is attributed: the first whose frames it holds.
@@ -164,12 +170,14 @@ def _tasks(study_name: str, cases: int) -> tuple[str, list]:
     return study.name, [CaseTask(study.base, folder, source, "profile", c) for c in chosen]
 
 
-def _measured(tasks: list, repeat: int) -> None:
-    """The sampled work: the cases, ``repeat`` times (the frame :data:`MEASURED`)."""
+def _measured(tasks: list, repeat: int) -> float:
+    """The sampled work: the cases, ``repeat`` times (the frame :data:`MEASURED`); its time [s]."""
     from vtm_pin.study.runner import run_cases
 
+    start = time.perf_counter()
     for _ in range(repeat):
         run_cases(tasks)
+    return time.perf_counter() - start
 
 
 def _child(args: argparse.Namespace) -> None:
@@ -180,11 +188,11 @@ def _child(args: argparse.Namespace) -> None:
     _, tasks = _tasks(args.study, args.cases)
     tune_collector()
     run_cases(tasks[:50])
-    _measured(tasks, args.repeat)
+    print(f"{SAMPLED}{_measured(tasks, args.repeat)!r}")
 
 
-def _sample(args: argparse.Namespace, spy: str) -> Profile:
-    """Run :func:`_child` under py-spy; its samples shared out."""
+def _sample(args: argparse.Namespace, spy: str) -> tuple[Profile, float]:
+    """Run :func:`_child` under py-spy; its samples shared out, and its cases' time [s]."""
     with tempfile.TemporaryDirectory() as folder:
         raw = Path(folder) / "samples.raw"
         child = [sys.executable, __file__, "--child", "--study", args.study]
@@ -194,8 +202,13 @@ def _sample(args: argparse.Namespace, spy: str) -> Profile:
         if done.returncode != 0:
             last = (done.stderr.strip().splitlines() or ["no message"])[-1]
             sys.exit(f"study_profile.py: py-spy or the sampled cases failed: {last}")
+        seconds = next(
+            float(line.removeprefix(SAMPLED))
+            for line in done.stdout.splitlines()
+            if line.startswith(SAMPLED)
+        )
         with raw.open() as lines:
-            return attribute(lines)
+            return attribute(lines), seconds
 
 
 def _rows(profile: Profile, case_ms: float, floor_ms: float) -> list[tuple[str, float, str]]:
@@ -252,7 +265,8 @@ def main() -> None:
     case_ms = sum(case_times(tasks).values())
     states, _, size, model, _ = pinocchio_work(tasks)
     floor_ms = 1e-3 * states * min(per_state(model, size).values())
-    profile = _sample(args, spy)
+    profile, seconds = _sample(args, spy)
+    slowdown = seconds / (1e-3 * case_ms * len(tasks) * args.repeat)
     rows = _rows(profile, case_ms, floor_ms)
     print(
         f"study {name}: {len(tasks)} cases, x{args.repeat} sampled at {args.rate}/s; "
@@ -262,6 +276,9 @@ def main() -> None:
         f"a case, unsampled: {case_ms:.2f} ms = {case_ms / floor_ms:.1f}x the floor "
         f"({floor_ms:.2f} ms, {states:.0f} states)"
     )
+    print(f"sampling slowed the cases {slowdown:.2f}x (unsampled mean against the sampled batches)")
+    if slowdown > MAX_SLOWDOWN:
+        print(f"WARNING: over {MAX_SLOWDOWN}x: the shares are skewed; lower --rate")
     print(f"{'part':<78} {'share':>6} {'[ms]':>6} {'x floor without':>16}")
     for label, share, left in rows:
         print(f"{label:<78} {100 * share:>5.1f}% {share * case_ms:>6.3f} {left:>16}")
