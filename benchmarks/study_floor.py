@@ -49,6 +49,7 @@ from benchlib import median_time
 
 from vtm_pin.core.batch import run_many
 from vtm_pin.core.results import SimulationResult
+from vtm_pin.exceptions import VtmError
 from vtm_pin.physics.robot import RobotCache
 from vtm_pin.scene.scenario import build_scenario
 from vtm_pin.study.cases import find_study, load_study, resolve_case
@@ -152,7 +153,10 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2, help="workers of the target [-]")
     parser.add_argument("--rounds", type=int, default=5, help="rounds of case and floor [-]")
     args = parser.parse_args()
-    study = load_study(find_study(args.study))
+    try:
+        study = load_study(find_study(args.study))
+    except VtmError as exc:
+        sys.exit(f"study_floor.py: {exc}")
     batch = min(BATCH_CASES, math.ceil(args.total / (4 * args.workers)))
     tasks = [
         CaseTask(study.base, str(study.scenario.parent), str(study.scenario), "floor", c)

@@ -234,10 +234,10 @@ def _plot(
     figure = Figure(figsize=(7.5, 3.6), layout="constrained")
     axes = figure.add_subplot()
     axes.barh([p for p, _ in parts][::-1], [ms for _, ms in parts][::-1], color="tab:blue")
-    axes.axvline(
-        cut, color="tab:red", linestyle="--", label=f"what must go for {TARGET:g}x the floor"
-    )
-    axes.legend(loc="lower right", fontsize=8)
+    if cut > 0.0:  # already within the target: nothing to mark
+        label = f"what must go for {TARGET:g}x the floor"
+        axes.axvline(cut, color="tab:red", linestyle="--", label=label)
+        axes.legend(loc="lower right", fontsize=8)
     axes.set_xlabel("time a case [ms]")
     axes.set_title(title, fontsize=9)
     figure.savefig(path, dpi=120)
@@ -261,7 +261,12 @@ def main() -> None:
         sys.exit("study_profile.py: py-spy is not installed; allowed: pip install -e '.[profile]'")
     from study_floor import case_times, per_state, pinocchio_work
 
-    name, tasks = _tasks(args.study, args.cases)
+    from vtm_pin.exceptions import VtmError
+
+    try:
+        name, tasks = _tasks(args.study, args.cases)
+    except VtmError as exc:
+        sys.exit(f"study_profile.py: {exc}")
     case_ms = sum(case_times(tasks).values())
     states, _, size, model, _ = pinocchio_work(tasks)
     floor_ms = 1e-3 * states * min(per_state(model, size).values())
