@@ -91,6 +91,23 @@ def case_times(tasks: list[CaseTask]) -> dict[str, float]:
     return {p: 1e3 * statistics.fmean(r["timing"][p] for r in ok) for p in PARTS}
 
 
+def study_tasks(name: str, cases: int) -> tuple[str, list[CaseTask]]:
+    """The study's name and its first ``cases`` case tasks (a worker's way).
+
+    Raises:
+        VtmError: No such study, or it is not valid.
+    """
+    study = load_study(find_study(name))
+    folder, source = str(study.scenario.parent), str(study.scenario)
+    chosen = study.cases()[:cases]
+    return study.name, [CaseTask(study.base, folder, source, "floor", c) for c in chosen]
+
+
+def floor_ms(model: pin.Model, size: int, states: float) -> float:
+    """The Pinocchio floor of a case [ms]: its states x the cheaper per-state cost."""
+    return 1e-3 * states * min(per_state(model, size).values())
+
+
 def floor_ratios(
     tasks: list[CaseTask], model: pin.Model, size: int, states: float, rounds: int
 ) -> list[float]:
@@ -103,7 +120,7 @@ def floor_ratios(
     ratios = []
     for _ in range(rounds):
         case = sum(case_times(tasks).values())
-        ratios.append(case / (1e-3 * states * min(per_state(model, size).values())))
+        ratios.append(case / floor_ms(model, size, states))
     return ratios
 
 
@@ -153,15 +170,11 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2, help="workers of the target [-]")
     parser.add_argument("--rounds", type=int, default=5, help="rounds of case and floor [-]")
     args = parser.parse_args()
+    batch = min(BATCH_CASES, math.ceil(args.total / (4 * args.workers)))
     try:
-        study = load_study(find_study(args.study))
+        name, tasks = study_tasks(args.study, args.cases or batch)
     except VtmError as exc:
         sys.exit(f"study_floor.py: {exc}")
-    batch = min(BATCH_CASES, math.ceil(args.total / (4 * args.workers)))
-    tasks = [
-        CaseTask(study.base, str(study.scenario.parent), str(study.scenario), "floor", c)
-        for c in study.cases()[: args.cases or batch]
-    ]
     split = case_times(tasks)
     states, passes, size, model, lanes = pinocchio_work(tasks)
     cost = per_state(model, size)
@@ -169,7 +182,7 @@ def main() -> None:
     load = import_seconds()
     budget = 1e3 * (args.target - load) * args.workers / args.total
     measured = sum(split.values())
-    print(f"study {study.name}: {len(tasks)} of its cases in this process; OMP_NUM_THREADS=1")
+    print(f"study {name}: {len(tasks)} of its cases in this process; OMP_NUM_THREADS=1")
     print(
         f"Pinocchio per state, 1 thread, batches of {size}: RNEA {cost['rnea']:.2f} us, "
         f"ABA {cost['aba']:.2f} us; a case: {states:.0f} states (right-hand sides and output "

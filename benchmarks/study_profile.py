@@ -159,17 +159,6 @@ def attribute(lines: Iterable[str]) -> Profile:
     return Profile(sum(parts.values()), dict(parts), dict(resumed), dict(build))
 
 
-def _tasks(study_name: str, cases: int) -> tuple[str, list]:
-    """The study's name and its first ``cases`` case tasks."""
-    from vtm_pin.study.cases import find_study, load_study
-    from vtm_pin.study.runner import CaseTask
-
-    study = load_study(find_study(study_name))
-    folder, source = str(study.scenario.parent), str(study.scenario)
-    chosen = study.cases()[:cases]
-    return study.name, [CaseTask(study.base, folder, source, "profile", c) for c in chosen]
-
-
 def _measured(tasks: list, repeat: int) -> float:
     """The sampled work: the cases, ``repeat`` times (the frame :data:`MEASURED`); its time [s]."""
     from vtm_pin.study.runner import run_cases
@@ -182,10 +171,12 @@ def _measured(tasks: list, repeat: int) -> float:
 
 def _child(args: argparse.Namespace) -> None:
     """The sampled process: warm as a worker does, then the measured batches."""
+    from study_floor import study_tasks
+
     from vtm_pin.study.executors import tune_collector
     from vtm_pin.study.runner import run_cases
 
-    _, tasks = _tasks(args.study, args.cases)
+    _, tasks = study_tasks(args.study, args.cases)
     tune_collector()
     run_cases(tasks[:50])
     print(f"{SAMPLED}{_measured(tasks, args.repeat)!r}")
@@ -259,27 +250,27 @@ def main() -> None:
     spy = shutil.which("py-spy") or shutil.which("py-spy", path=str(Path(sys.executable).parent))
     if spy is None:
         sys.exit("study_profile.py: py-spy is not installed; allowed: pip install -e '.[profile]'")
-    from study_floor import case_times, per_state, pinocchio_work
+    from study_floor import case_times, floor_ms, pinocchio_work, study_tasks
 
     from vtm_pin.exceptions import VtmError
 
     try:
-        name, tasks = _tasks(args.study, args.cases)
+        name, tasks = study_tasks(args.study, args.cases)
     except VtmError as exc:
         sys.exit(f"study_profile.py: {exc}")
     case_ms = sum(case_times(tasks).values())
     states, _, size, model, _ = pinocchio_work(tasks)
-    floor_ms = 1e-3 * states * min(per_state(model, size).values())
+    floor = floor_ms(model, size, states)
     profile, seconds = _sample(args, spy)
     slowdown = seconds / (1e-3 * case_ms * len(tasks) * args.repeat)
-    rows = _rows(profile, case_ms, floor_ms)
+    rows = _rows(profile, case_ms, floor)
     print(
         f"study {name}: {len(tasks)} cases, x{args.repeat} sampled at {args.rate}/s; "
         f"{profile.total} samples; OMP_NUM_THREADS=1"
     )
     print(
-        f"a case, unsampled: {case_ms:.2f} ms = {case_ms / floor_ms:.1f}x the floor "
-        f"({floor_ms:.2f} ms, {states:.0f} states)"
+        f"a case, unsampled: {case_ms:.2f} ms = {case_ms / floor:.1f}x the floor "
+        f"({floor:.2f} ms, {states:.0f} states)"
     )
     print(f"sampling slowed the cases {slowdown:.2f}x (unsampled mean against the sampled batches)")
     if slowdown > MAX_SLOWDOWN:
@@ -287,14 +278,14 @@ def main() -> None:
     print(f"{'part':<78} {'share':>6} {'[ms]':>6} {'x floor without':>16}")
     for label, share, left in rows:
         print(f"{label:<78} {100 * share:>5.1f}% {share * case_ms:>6.3f} {left:>16}")
-    cut = case_ms - TARGET * floor_ms
+    cut = case_ms - TARGET * floor
     print(
         f"to reach {TARGET:g}x the floor, {max(cut, 0.0):.3f} ms a case "
         f"({100 * max(cut, 0.0) / case_ms:.0f} %) must go"
     )
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"study_profile_{name}.png"
-    title = f"{name}: {case_ms:.2f} ms a case, {case_ms / floor_ms:.1f}x the floor (sampled shares)"
+    title = f"{name}: {case_ms:.2f} ms a case, {case_ms / floor:.1f}x the floor (sampled shares)"
     _plot(rows, case_ms, cut, title, path)
     print(f"plot: {path}")
 
