@@ -50,7 +50,7 @@ from ..physics.kinematics import (
     kinematics_key,
     pinocchio_data,
 )
-from ..physics.payload import Payload
+from ..physics.payload import Payload, body_parameters
 from ..physics.robot import Robot
 from .stopping import StoppingReport
 
@@ -180,27 +180,34 @@ def _brake_torques(
     A joint without a brake holds nothing (0), unless a prescribed lock holds it to the end
     (not ``free``: NaN, not checked). Also whether every brake's torques are at least its
     joint's largest load over every pose (:func:`gravity_bounds`). Kept in the robot's cache
-    by the brakes and ``free`` (a study's cases share them): read-only arrays.
+    by the brakes and ``free`` (a study's cases share them): read-only arrays. The torques
+    depend on the brakes and the gear ratios only, so the robots that differ from it in a
+    payload share them (a drawn payload's case computes only its bound).
     """
 
-    def build() -> tuple[np.ndarray, np.ndarray, bool]:
+    def torques() -> tuple[np.ndarray, np.ndarray]:
         static, kinetic = static_torques(robot, brakes), kinetic_torques(robot, brakes)
-        for torques in (static, kinetic):
-            torques[np.isnan(torques) & free] = 0.0
-            torques.flags.writeable = False
+        for each in (static, kinetic):
+            each[np.isnan(each) & free] = 0.0
+            each.flags.writeable = False
+        return static, kinetic
+
+    def above(static: np.ndarray, kinetic: np.ndarray) -> bool:
         bounds = gravity_bounds(robot)
-        return (
-            static,
-            kinetic,
-            bounds is not None and _above(static, bounds) and _above(kinetic, bounds),
-        )
+        return bounds is not None and _above(static, bounds) and _above(kinetic, bounds)
 
     key = ("brake_torques", tuple(brakes), free.tobytes())
     try:
         hash(key)
     except TypeError:  # a friction law of the caller's own with an unhashable field: not kept
-        return build()
-    return robot.cache.get(key, build)
+        static, kinetic = torques()
+        return static, kinetic, above(static, kinetic)
+    static, kinetic = robot.cache.get(key, torques, kinematic=True)
+    return (
+        static,
+        kinetic,
+        robot.cache.get(("brakes_above", *key[1:]), lambda: above(static, kinetic)),
+    )
 
 
 def _above(torques: np.ndarray, bounds: np.ndarray) -> bool:
@@ -232,12 +239,12 @@ def _gravity_bounds(robot: Robot) -> np.ndarray | None:
     parents, factor, index = robot.cache.get(
         "gravity_bound_factors", lambda: _bound_factors(robot), kinematic=True
     )
-    inertias = robot.model.inertias
-    mass = [inertia.mass for inertia in inertias]
+    parameters = body_parameters(robot)
+    mass = parameters[:, 0].tolist()
     subtree = list(mass)  # M_k: the mass each joint carries [kg]
     for j in range(len(mass) - 1, 0, -1):
         subtree[parents[j]] += subtree[j]
-    fixed = np.array([inertia.mass * inertia.lever for inertia in inertias])  # v_j [kg m]
+    fixed = parameters[:, 1:4].copy()  # m_j c_j, then v_j [kg m]
     np.add.at(fixed, parents[1:], np.array(subtree[1:])[:, None] * chain.translations[1:])
     norms = np.sqrt(np.einsum("ji,ji->j", fixed, fixed))
     turning = norms.tolist()  # H_j: the bound of |h_j| [kg m], children added below
