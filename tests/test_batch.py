@@ -22,7 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import vtm_pin as vp
-from vtm_pin.core import batch
+from vtm_pin.core import batch, simulation
 from vtm_pin.core.batch import (
     FEW_LANES,
     MIN_LANES,
@@ -36,6 +36,7 @@ from vtm_pin.core.simulation import hybrid_run
 from vtm_pin.exceptions import SimulationError, VtmError, VtmWarning
 from vtm_pin.numerics.dynamics import compute_M
 from vtm_pin.numerics.integrators import DOP853, RK4
+from vtm_pin.physics.brakes import BrakeEventKind
 from vtm_pin.scene.scenario import SCENARIOS_DIR
 from vtm_pin.standards.bounds import error_gain
 from vtm_pin.study.cases import find_study, load_study
@@ -122,6 +123,40 @@ def test_shipped_scenarios_agree(name: str) -> None:
     assert fallback_reason(scenario.problem, integrator) is None
     scalar = vp.simulate(scenario.problem, integrator, transition=scenario.transition)
     (batched,) = simulate_many([scenario.problem], integrator, transition=scenario.transition)
+    assert_same_run(scalar, batched)
+
+
+@pytest.mark.parametrize("transition", ["kkt", "naive", "projected"])
+def test_rests_settled_across_the_lanes_are_locked_by_the_runs_rule(
+    transition: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The six brakes of a UR10 stop stick at rest, decided across the lanes; the loop locks
+    them all at once at rest under kkt, one by one by the rule under another (the jump then
+    comes from the rule's own formulation): every record as the scalar engine's, to 1e-8."""
+    scenario = vp.load_scenario(SCENARIOS_DIR / "ur10_estop_cat0.yaml")
+    integrator = DOP853(rtol=1e-9, atol=1e-11, output_dt=1e-2)
+    scalar = vp.simulate(scenario.problem, integrator, transition=transition)
+    one_by_one: list[list[int]] = []
+    stick = simulation._Hybrid.stick
+    monkeypatch.setattr(
+        simulation._Hybrid,
+        "stick",
+        lambda self, t, joints: one_by_one.append(list(joints)) or stick(self, t, joints),
+    )
+    settled = batch.BatchEngine._settle_rests
+    rests: list[int] = []
+    monkeypatch.setattr(
+        batch.BatchEngine,
+        "_settle_rests",
+        lambda self, lanes, runs, rested: (
+            rests.append(len(rested)) or settled(self, lanes, runs, rested)
+        ),
+    )
+    (batched,) = simulate_many([scenario.problem], integrator, transition=transition)
+    assert len(rests) == 6  # every brake's rest was located and settled across the lanes
+    sticks = [b for b in batched.brake_events if b.kind is BrakeEventKind.STICK]
+    assert len(sticks) == 6
+    assert (one_by_one == []) == (transition == "kkt")
     assert_same_run(scalar, batched)
 
 
