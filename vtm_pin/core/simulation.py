@@ -247,30 +247,25 @@ class _Hybrid:
         six times a study case. Its record, whose transition needs the momentum M v, is made
         when the run's records are first read (:class:`_RestLock`).
         """
+        before = self.locked
         v_minus = self.v.copy()
         require_finite(v_minus)  # v+ = v-: checked now, as the jump would be
-        self._rest_lock(t, joints, self.q.copy(), v_minus, kind)
-        self.v = v_minus.copy()
-        self.v[self.locked] = 0.0  # -0.0 as 0.0, as the general path
-
-    def _rest_lock(
-        self, t: float, joints: Sequence[int], q: np.ndarray, v: np.ndarray, kind: LockKind
-    ) -> None:
-        """Record a lock at rest at (q [rad], v [rad/s], kept) and lock ``joints``."""
         self.events.append(
             _RestLock(
                 t,
                 tuple(joints),
-                tuple(self.locked),
-                q,
-                v,
+                tuple(before),
+                self.q.copy(),
+                v_minus,
                 kind,
                 self.robot,
                 self.reduced,
                 self._labels,
             )
         )
-        self.locked = [*self.locked, *joints]
+        self.locked = [*before, *joints]
+        self.v = v_minus.copy()
+        self.v[self.locked] = 0.0  # -0.0 as 0.0, as the general path
 
     def joint_lock(self, joints: Sequence[int]) -> TransitionResult:
         """The kkt rule's jump for pure joint locks, in O(n) without forming M.
@@ -373,60 +368,15 @@ class _Hybrid:
         """Brakes that hold their joints at rest: one momentum-consistent lock."""
         self.lock(t, joints, LockKind.STICK)
 
-    def stick_rested(self, rests: Sequence[Rested], ends: np.ndarray) -> None:
-        """Sliding joints reached rest in turn and every brake at rest held: they stick.
+    def stick_rested(self, t: float, joint: int, hold: np.ndarray) -> None:
+        """Sliding ``joint`` reached rest and every brake at rest holds: it sticks.
 
-        The decisions were taken by the integrator (:class:`Rested`, ``rests``); ``ends``:
-        the state of all joints at each rest, (q, v, extras) as rows (changed here: each
-        arrived joint's rate set to 0). Each stick is recorded as :meth:`BrakeMachine.settle
-        <vtm_pin.physics.brakes.BrakeMachine.settle>` would record it, and locked by the
-        transition rule; with the kkt rule and no frame constraint, where every locked rate
-        is exactly 0 (the integrator's locked joints keep v = 0), all at once, with the
-        records :meth:`lock` makes one by one. The loop is then at the last rest. The next
-        phase is built when it is asked for: the integrator may hand more rests first.
+        The decision was taken by the integrator (:class:`Rested`). The next phase is built
+        when it is asked for: the integrator may hand more rested intervals first, which need
+        none.
         """
-        n, k = self.robot.nv, len(rests)
-        joints = [piece.joint for piece in rests]
-        times = [float(piece.t[-1]) for piece in rests]
-        arrived = (np.arange(k), n + np.array(joints))
-        v_event = ends[arrived].tolist()
-        hold = [float(piece.hold[j]) for piece, j in zip(rests, joints, strict=True)]
-        self.machine.stick_rested(times, joints, v_event, hold)
-        ends[arrived] = 0.0
+        self.machine.stick_rested(t, self, joint, hold)
         self._phase = None
-        if self._lock_rests(times, joints, ends):
-            end = ends[-1]
-            self.q, self.extras = end[:n], end[2 * n :]
-            self.v = end[n : 2 * n].copy()
-            self.v[self.locked] = 0.0  # -0.0 as 0.0, as the general path
-            return
-        for t, joint, end in zip(times, joints, ends, strict=True):
-            self.q, self.v, self.extras = end[:n], end[n : 2 * n], end[2 * n :]
-            self.stick(t, [joint])
-
-    def _lock_rests(self, times: Sequence[float], joints: Sequence[int], ends: np.ndarray) -> bool:
-        """:meth:`_lock_at_rest` of each of ``joints`` in turn, if every lock is at rest.
-
-        Returns False (nothing done) if one is not: a frame constraint, a rule other than
-        kkt, a joint locked twice or a locked rate not exactly 0; :meth:`lock` then takes
-        them one by one.
-        """
-        n, before = self.robot.nv, self.locked
-        if (
-            self.frames
-            or self.rule_name != "kkt"
-            or len({*before, *joints}) < len(before) + len(joints)
-        ):
-            return False
-        locked = np.zeros((len(joints), n), dtype=bool)  # each lock's joints, its own included
-        locked[:, before] = True
-        locked[np.arange(len(joints)), joints] = True
-        locked = np.logical_or.accumulate(locked, axis=0)
-        if ends[:, n : 2 * n][locked].any():
-            return False
-        for t, joint, end in zip(times, joints, ends, strict=True):
-            self._rest_lock(t, [joint], end[:n].copy(), end[n : 2 * n].copy(), LockKind.STICK)
-        return True
 
 
 @dataclass(frozen=True)
@@ -700,22 +650,19 @@ def _take_rests(
             f"{bad.t[-1]:.6g} s: the step is too large for these dynamics; reduce it"
         )
     n = trace.n
-    sizes = [piece.t.size for piece in rests]
-    ends = y[np.cumsum(sizes) - 1]  # each one's last state, a copy
-    counts.rhs_evals += sum(piece.rhs_evals for piece in rests)
-    counts.steps += sum(piece.steps for piece in rests)
-    first = counts.state_events
-    counts.state_events += len(rests)
-    if counts.state_events > MAX_STATE_EVENTS:  # the event that goes over the limit
-        _check_chatter(counts.state_events, float(rests[MAX_STATE_EVENTS - first].t[-1]))
-    if progress is not None:
-        for piece in rests:
-            progress(float(piece.t[-1]))
-    joints = [piece.joint for piece in rests]
-    before = trace.rows_now(h)
-    h.stick_rested(rests, ends)
-    trace.add_rows_in_turn(before, trace.rows_now(h), sizes, joints)
-    t = float(rests[-1].t[-1])
+    ends = y[np.cumsum([piece.t.size for piece in rests]) - 1]  # each one's last state, a copy
+    t = 0.0
+    for piece, end in zip(rests, ends, strict=True):
+        counts.rhs_evals += piece.rhs_evals
+        counts.steps += piece.steps
+        trace.add_rows(h, piece.t.size)  # its free joints and modes, before its stick
+        h.q, h.v, h.extras = end[:n], end[n : 2 * n], end[2 * n :]
+        t = float(piece.t[-1])
+        if progress is not None:
+            progress(t)
+        counts.state_events += 1
+        _check_chatter(counts.state_events, t)
+        h.stick_rested(t, piece.joint, piece.hold)
     trace.add_arrays(
         t=rests[0].t if len(rests) == 1 else np.concatenate([piece.t for piece in rests]),
         q=y[:, :n],
@@ -849,29 +796,9 @@ class _Trace:
             self.drift.append((self.samples, drift))
         self.samples += size
 
-    def rows_now(self, h: _Hybrid) -> tuple[np.ndarray, bytes]:
-        """The free mask and modes of the loop now (:meth:`add_rows_in_turn`)."""
-        return self._free(h), bytes(h.machine.modes)
-
-    def add_rows_in_turn(
-        self,
-        before: tuple[np.ndarray, bytes],
-        after: tuple[np.ndarray, bytes],
-        sizes: Sequence[int],
-        joints: Sequence[int],
-    ) -> None:
-        """The rows of consecutive blocks, each ended by one joint's change (its stick).
-
-        Block k has ``sizes[k]`` samples and ends when ``joints[k]`` changes; each change
-        touches its own joint's entries only, so block k's free mask and modes are those
-        ``before`` the first with the entries of ``joints[:k]`` as they are ``after`` the
-        last (:meth:`rows_now`).
-        """
-        free, modes = before[0].copy(), bytearray(before[1])
-        for size, joint in zip(sizes, joints, strict=True):
-            self._rows(free.copy(), modes, size)
-            free[joint] = after[0][joint]
-            modes[joint] = after[1][joint]
+    def add_rows(self, h: _Hybrid, size: int) -> None:
+        """The free mask and modes of the loop now, for ``size`` samples of a block."""
+        self._rows(self._free(h), h.machine.modes, size)
 
     def _free(self, h: _Hybrid) -> np.ndarray:
         free = self._all_free.copy()  # a copy of a template: np.ones costs ~3x as much

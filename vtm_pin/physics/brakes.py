@@ -319,26 +319,19 @@ class BrakeMachine:
             self._check_released(t, world, released)
             self._verify_stuck(t, world)
 
-    def stick_rested(
-        self,
-        t: Sequence[float],
-        joints: Sequence[int],
-        v: Sequence[float],
-        hold: Sequence[float],
-    ) -> None:
-        """:meth:`settle`'s most common outcome, decided by the caller: ``joints`` stick in turn.
+    def stick_rested(self, t: float, world: BrakeWorld, joint: int, hold: np.ndarray) -> None:
+        """:meth:`settle`'s most common outcome, decided by the caller: ``joint`` sticks.
 
-        Sliding joint ``joints[k]`` reached rest at ``t[k]`` [s] (its zero-velocity event) at
-        rate ``v[k]`` [rad/s]; no other braked joint was at rest or slid against its mode,
-        and the holding torques with it locked were within every stuck joint's static limit
-        and its own (``hold[k]``: its own [N m]). :meth:`settle` would then stick it with
-        these records and verify the stuck joints under unchanged loads: nothing more. The
-        batched engine decides this across its lanes
-        (:class:`vtm_pin.core.simulation.Rested`); the caller locks the joints (their rates
-        set to 0), as :meth:`settle` has its world do.
+        Sliding ``joint`` reached rest (its zero-velocity event), no other braked joint is at
+        rest or slides against its mode, and the holding torques ``hold`` [N m] with it
+        locked are within every stuck joint's static limit and its own. :meth:`settle`
+        would then set its rate to 0, stick it with these records and verify the stuck
+        joints under unchanged loads: nothing more. The batched engine decides this across
+        its lanes (:class:`vtm_pin.core.simulation.Rested`).
         """
-        for t_k, i, v_k, hold_k in zip(t, joints, v, hold, strict=True):
-            self._stuck(t_k, i, v_k, hold_k, self.static(t_k, i))
+        self._v_event = {joint: float(world.v[joint])}
+        world.v[joint] = 0.0
+        self._stick(t, world, [joint], hold, {joint: self.static(t, joint)})
 
     def _verify_stuck(self, t: float, world: BrakeWorld) -> None:
         """Step 4 of :meth:`settle`: stuck joints must hold under the final modes' loads.
@@ -487,18 +480,19 @@ class BrakeMachine:
     ) -> None:
         """Joints at rest whose brakes hold them stick: one consistent lock."""
         for i in joints:
-            self._stuck(t, i, self._v_event[i], float(hold[i]), limits[i])
+            self.events.append(
+                BrakeEvent(
+                    t,
+                    self.joints[i],
+                    BrakeEventKind.STICK,
+                    self._v_event[i],
+                    float(hold[i]),
+                    limits[i],
+                )
+            )
+            self.modes[i] = BrakeMode.STUCK
         if joints:
             world.stick(t, joints)
-
-    def _stuck(self, t: float, i: int, v: float, hold: float, limit: float) -> None:
-        """Joint ``i`` sticks at ``t`` [s]: its event and its mode.
-
-        ``v``: its rate before it was set to 0 [rad/s]; ``hold`` and ``limit``: its holding
-        torque and static limit [N m].
-        """
-        self.events.append(BrakeEvent(t, self.joints[i], BrakeEventKind.STICK, v, hold, limit))
-        self.modes[i] = BrakeMode.STUCK
 
     def _follow_reversals(self, t: float, world: BrakeWorld, arrived: set[int]) -> None:
         """Sliding joints whose rate has the other sign (after a jump) slide the other way.
