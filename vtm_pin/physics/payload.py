@@ -209,6 +209,7 @@ def attach_payload(robot: Robot, payload: Payload) -> Robot:
     """
     frame_name = check_payload(robot, payload)
     model = pin.Model(robot.model)
+    parameters = None  # the bodies' parameters: the robot's, the payload's added
     if payload.mass > 0.0:  # mass 0 has no inertia either (check_payload): nothing to add
         frame = model.frames[model.getFrameId(frame_name)]
         rotational = np.zeros((3, 3)) if payload.inertia is None else payload.inertia
@@ -217,12 +218,12 @@ def attach_payload(robot: Robot, payload: Payload) -> Robot:
         jid = frame.parentJoint
         placed = placement.act(body)
         model.inertias[jid] = model.inertias[jid] + placed
-    loaded = dataclasses.replace(robot, model=model)
-    loaded.cache.share_kinematics(robot.cache)  # the same joints: its kinematic entries hold
-    if payload.mass > 0.0:  # its bodies' parameters: the robot's, the payload's added
         parameters = body_parameters(robot).copy()
         parameters[jid] += placed.toDynamicParameters()
         parameters.flags.writeable = False
+    loaded = dataclasses.replace(robot, model=model)
+    loaded.cache.share_kinematics(robot.cache)  # the same joints: its kinematic entries hold
+    if parameters is not None:
         loaded.cache.get(PARAMETERS, lambda: parameters)
     return loaded
 
