@@ -43,6 +43,11 @@ SAMPLED = "sampled seconds: "
 MAX_SLOWDOWN = 1.5
 #: Frames of a sample that is not the cases' own work: imports, a kernel's first load.
 NOT_MEASURED = ("_find_and_load", "_compiled")
+#: A plain stop's records, made for its hybrid loop (which the engine left): by their frame.
+PLAIN = {
+    "PlainStop.__init__": "a plain stop's first interval and engagement recorded",
+    "PlainStop.result": "a plain stop's rests and end recorded",
+}
 #: A case's parts, in the order a sample is attributed: the first whose frames it holds.
 #: A sample under the measured batch holding none of them is ``other``.
 PARTS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
@@ -53,7 +58,11 @@ PARTS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
         ("_case_raw", "build_scenario", "_Poses.solve", "bound_variants"),
     ),
     ("scalar", "runs the batched engine left to the scalar engine", ("_simulate_one",)),
-    ("hybrid loop", "the case's own Python: brakes, locks, the next phase", ("_Run.advance",)),
+    (
+        "hybrid loop",
+        "the case's own Python: brakes, locks, the next phase; a plain stop's records",
+        ("_Run.advance", *PLAIN),
+    ),
     (
         "dynamics",
         "accelerations of all lanes (compiled kernel inside)",
@@ -72,6 +81,7 @@ PARTS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
             "BatchEngine._own_margins",
             "BatchEngine._finish",
             "BatchEngine._settle_rests",
+            "BatchEngine._engage",
         ),
     ),
     (
@@ -127,7 +137,13 @@ def _part(names: Sequence[str]) -> str:
 
 
 def _resumed_by(names: Sequence[str]) -> str:
-    """What resumed a hybrid-loop sample: the caller of its ``BatchEngine.advance``."""
+    """What resumed a hybrid-loop sample: the caller of its ``BatchEngine.advance``.
+
+    A plain stop's records (:data:`PLAIN`) are their own label.
+    """
+    plain = next((PLAIN[name] for name in names if name in PLAIN), None)
+    if plain is not None:
+        return plain
     i = names.index("BatchEngine.advance") if "BatchEngine.advance" in names else 0
     return RESUMED_BY.get(names[i - 1], "other") if i > 0 else "other"
 

@@ -6,7 +6,7 @@ import sys
 from conftest import ROOT
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from study_profile import BUILD_STEPS, PARTS, RESUMED_BY, attribute
+from study_profile import BUILD_STEPS, PARTS, PLAIN, RESUMED_BY, attribute
 
 from vtm_pin.core import batch
 from vtm_pin.outputs import figures
@@ -30,6 +30,9 @@ def test_each_sample_goes_to_the_first_part_it_holds_and_the_shares_add_up():
         f"{stack('_Run.advance', 'hybrid_run')} 5\n",
         f"{RUN};{stack('BatchEngine.run', 'BatchEngine._hand', 'BatchEngine.advance')};"
         f"{stack('_Run.advance')} 2\n",
+        # a plain stop's records, made under the lanes' rests: the hybrid loop's
+        f"{RUN};{stack('BatchEngine.run', 'BatchEngine._settle_rests', 'BatchEngine._conclude')};"
+        f"{stack('PlainStop.result', '_Trace.result')} 4\n",
         f"{RUN};{stack('BatchEngine.run', 'BatchEngine._round', '_Dynamics.accelerations')} 7\n",
         f"{RUN};{stack('BatchEngine.run', 'BatchEngine._dense_samples', '_grid_times')} 4\n",
         f"{RUN};{stack('BatchEngine.run', 'BatchEngine._dense_samples')} 6\n",
@@ -44,10 +47,10 @@ def test_each_sample_goes_to_the_first_part_it_holds_and_the_shares_add_up():
         "garbage\n",
     ]
     profile = attribute(lines)
-    assert profile.total == 3 + 5 + 2 + 7 + 4 + 6 + 8 + 9 + 1 + 2 + 1
+    assert profile.total == 3 + 5 + 2 + 4 + 7 + 4 + 6 + 8 + 9 + 1 + 2 + 1
     assert profile.parts == {
         "report": 3,
-        "hybrid loop": 7,
+        "hybrid loop": 11,
         "dynamics": 7,
         "lanes": 4,
         "dense output": 6,
@@ -60,6 +63,7 @@ def test_each_sample_goes_to_the_first_part_it_holds_and_the_shares_add_up():
     assert profile.resumed == {
         RESUMED_BY["BatchEngine._sync"]: 5,
         RESUMED_BY["BatchEngine._hand"]: 2,
+        PLAIN["PlainStop.result"]: 4,
     }
     assert profile.build == {BUILD_STEPS["build_scenario"]: 9, BUILD_STEPS["_Poses.solve"]: 1}
 
@@ -73,7 +77,7 @@ def test_every_frame_the_profile_looks_for_is_a_function_of_the_package():
         for name in _qualnames(obj)
     }
     wanted = {frame for _, _, frames in PARTS for frame in frames}
-    wanted |= set(RESUMED_BY) | set(BUILD_STEPS) | {"BatchEngine.advance"}
+    wanted |= set(RESUMED_BY) | set(BUILD_STEPS) | set(PLAIN) | {"BatchEngine.advance"}
     assert wanted - defined == set()
 
 

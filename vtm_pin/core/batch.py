@@ -23,6 +23,18 @@ on with its next interval at once; its run's loop is handed the interval later, 
 a trial lock set or a phase of its own. Anything else (a reversal, another joint at rest, a
 brake that cannot hold, a slip) goes to the run's loop, as before.
 
+**Plain stops run by the engine.** A study case's whole life is usually a plain stop
+(:func:`~vtm_pin.core.simulation.plain_stop`: category 0 at t = 0, every joint braked by
+friction without a ramp, one engagement instant, the kkt rule, no holding torques kept). Its
+loop then has nothing to decide after its first interval that the engine cannot decide across
+its lanes: at the engagement every joint slides against its motion (:meth:`BatchEngine._engage`),
+then each rest sticks as above, until every joint is stuck. The engine leaves the loop at the
+engagement and hands the records to a :class:`~vtm_pin.core.simulation.PlainStop`, which
+writes the loop's own, to the bit (tests/test_batch_plain.py): no phase, request or lane load
+after the first interval. With a joint at rest at the engagement the loop decides, as before;
+a plain stop that is not plain later (a rest the engine does not settle, a slip, a failure)
+goes back to its own loop, started again from t = 0 (:meth:`BatchEngine._return`).
+
 **What batches together** (:func:`_groups`): runs with the same integrator settings and the
 same model (:func:`model_key`), when that model has at least :data:`MIN_LANES` runs; the runs
 of the other models are pooled when their models have the same joints, placements, parents,
@@ -98,7 +110,7 @@ from ..physics.robot import Robot
 from .phase import WORKS
 from .problem import Problem
 from .results import SimulationResult
-from .simulation import Reply, Rested, SegmentRequest, hybrid_run
+from .simulation import PlainStop, Reply, Rested, SegmentRequest, hybrid_run, plain_stop
 
 ENGINES = ("batched", "scalar")
 #: Fewest runs of one model a study gives a batch: fewer run faster on the scalar engine.
@@ -124,13 +136,17 @@ PARTS = ("dynamics", "hybrid", "lanes", "location", "stepping")
 #: events located with the phase's own event functions, and, for contrast, rests located
 #: across the lanes, rests settled across the lanes (:meth:`BatchEngine._settle_rests`:
 #: handed to the loop later, without a decision of its own) and the intervals handed
-#: (as many as the scalar loop's requests).
+#: (as many as the scalar loop's requests); the plain stops whose lives the engine took
+#: over after their first interval (:class:`~vtm_pin.core.simulation.PlainStop`), and those
+#: of them it handed back to their own loops, started again (:meth:`BatchEngine._return`).
 LANE_PYTHON = (
     "resumptions",
     "own_locations",
     "batched_locations",
     "settled_rests",
     "intervals",
+    "plain_stops",
+    "plain_returned",
 )
 
 _LANES = dp.LANES
@@ -506,7 +522,12 @@ class _Lanes:
 
 
 class _Run:
-    """One run's hybrid loop and the interval it is waiting for."""
+    """One run's hybrid loop and the interval it is waiting for.
+
+    A plain stop's loop (:func:`~vtm_pin.core.simulation.plain_stop`) is left after its first
+    interval, when its brakes engage: the engine then decides its life itself, and its
+    records are made by :attr:`plain` (see :meth:`BatchEngine._engage`).
+    """
 
     def __init__(
         self,
@@ -517,10 +538,15 @@ class _Run:
         holding: bool = True,
     ) -> None:
         self.index = index
+        self.problem = problem
+        self.integrator = integrator
         self.transition = transition
-        self.loop: Generator[SegmentRequest, Reply, SimulationResult] = hybrid_run(
-            problem, integrator, transition=transition, reduced_models=False, holding=holding
-        )
+        self.holding = holding
+        #: A plain stop's engagement instant [s] (None: not a plain stop, or no longer).
+        self.engage_at = plain_stop(problem, transition, holding)
+        #: A plain stop's records once the engine has taken over its life.
+        self.plain: PlainStop | None = None
+        self.loop = self._loop()
         self.request: SegmentRequest | None = None
         self.outcome: SimulationResult | VtmError | None = None
         self.grid: _Grid | None = None
@@ -532,6 +558,22 @@ class _Run:
         #: The intervals its lane ended at rests it decided itself, not yet handed to the loop.
         self.pieces: list[Rested] = []
         self.output_dt: float | None = None
+
+    def _loop(self) -> Generator[SegmentRequest, Reply, SimulationResult]:
+        return hybrid_run(
+            self.problem,
+            self.integrator,
+            transition=self.transition,
+            reduced_models=False,
+            holding=self.holding,
+        )
+
+    def restart(self) -> None:
+        """Start its own loop again from t = 0 (a plain stop that is no longer plain)."""
+        self.loop.close()
+        self.loop = self._loop()
+        self.engage_at = self.plain = self.request = None
+        self.pieces = []
 
     def sample(self, lanes: _Lanes, b: int) -> None:
         """Keep its lane ``b``'s state now as a sample (time, padded state, holding torques)."""
@@ -911,14 +953,69 @@ class BatchEngine:
         lanes.lam[rows] = lam_new[go]
         lanes.h[rows] = step.h * factor
         gridless = lanes.out_end[rows] == -math.inf
+        engaging: list[int] = []  # plain stops at their brakes' engagement
         for i in np.flatnonzero(step.last | gridless):
             b = int(rows[i])
             run = runs[b]
             run.sample(lanes, b)
-            if step.last[i]:
+            if step.last[i] and run.plain is None and run.engage_at == lanes.t[b]:
+                engaging.append(b)
+            elif step.last[i]:
                 lanes.running[b] = False
                 self._finish(lanes, run, b, None)
                 finished.append(b)
+        if engaging:
+            self._engage(lanes, runs, np.array(engaging), finished)
+
+    def _engage(
+        self, lanes: _Lanes, runs: Sequence[_Run], rows: np.ndarray, finished: list[int]
+    ) -> None:
+        """Plain stops' brakes engaging at the end of their first interval, across the lanes.
+
+        The brake state machine's decision (:meth:`~vtm_pin.physics.brakes.BrakeMachine.engage`
+        for every joint, then :meth:`~vtm_pin.physics.brakes.BrakeMachine.settle`) when every
+        joint moves faster than ``REST_RATE``: each brake slides against its joint's motion,
+        and nothing else changes. The engine takes it itself. The run's loop is left: its
+        records go to a :class:`~vtm_pin.core.simulation.PlainStop`, and its lane goes on at
+        once with the next interval as the loop's next phase has it (every joint sliding and
+        watched for its rest, the accumulators integrated, to the run's end). Its rests then
+        stick across the lanes (:meth:`_settle_rests`) until none slides (:meth:`_conclude`);
+        anything else hands it back to its own loop (:meth:`_return`). A lane with a joint at
+        rest now, or a state not finite, hands its run the interval, whose loop decides.
+        """
+        n = self.n
+        y = lanes.y[rows]
+        v = y[:, n : 2 * n]
+        common = (np.abs(v) > REST_RATE).all(axis=1) & np.isfinite(y).all(axis=1)
+        for b in rows[~common]:
+            lanes.running[b] = False
+            self._finish(lanes, runs[b], int(b), None)
+            finished.append(int(b))
+        rows, v = rows[common], v[common]
+        if rows.size == 0:
+            return
+        begin = time.perf_counter()
+        for b in rows:
+            run = runs[b]
+            t, y_b, _ = self._samples(lanes, run, b)
+            if not lanes.active[b, 2 * n]:  # a passive interval's accumulators are 0 (as the
+                y_b[:, 2 * n :] = lanes.y[b, 2 * n :] = 0.0  # loop has them); now integrated
+            counts = (int(lanes.evals[b]), int(lanes.accepted[b]))
+            run.plain = PlainStop(run.problem, self.integrator.name, (t, y_b), counts)
+            run.loop.close()
+            run.request = None
+            lanes.t1[b] = run.problem.duration
+        self.lane_python["plain_stops"] += rows.size
+        self.seconds["hybrid"] += time.perf_counter() - begin
+        sign = np.where(v > 0.0, 1.0, -1.0)
+        lanes.sign[rows], lanes.event_dir[rows] = sign, -sign
+        lanes.event_kind[rows], lanes.event_index[rows] = 1, np.arange(n)
+        lanes.braked[rows], lanes.engaged[rows] = True, lanes.t[rows, None]
+        lanes.active[rows], lanes.count[rows] = True, lanes.ny
+        t, y = lanes.t[rows], lanes.y[rows]
+        lanes.fy[rows], lanes.lam[rows] = self.rhs(lanes, rows, t, y)
+        lanes.g_prev[rows] = self._g(lanes, rows, t, y, lanes.lam[rows])
+        self._restart(lanes, runs, rows)
 
     def _dense_samples(
         self,
@@ -955,6 +1052,8 @@ class BatchEngine:
         any_fired: list[bool] = np.asarray(fired.any(axis=1)).tolist()
         for i, (b, t, some) in enumerate(zip(sub.tolist(), starts, any_fired, strict=True)):
             run = runs[b]
+            if some and not lanes.running[b]:  # handed back to its own loop (a plain stop)
+                continue
             if some:
                 try:
                     found = rests.get(i)
@@ -1032,7 +1131,7 @@ class BatchEngine:
         self.seconds["lanes"] += time.perf_counter() - begin - inner
         self._restart(lanes, runs, going)
         for b in np.setdiff1d(settled, going):  # nothing slides on: its run decides what follows
-            self._sync(lanes, runs[b], int(b))
+            self._conclude(lanes, runs[b], int(b))
         for b in np.setdiff1d(rows, settled):  # its loop settles it
             self._hand(lanes, runs[b], int(b), samples[int(b)], rested[int(b)])
         return {int(b) for b in going}
@@ -1257,7 +1356,14 @@ class BatchEngine:
         samples: tuple[np.ndarray, np.ndarray, np.ndarray | None],
         event: int | None,
     ) -> None:
-        """Hand run ``b`` its interval's samples as its segment (reduced layout)."""
+        """Hand run ``b`` its interval's samples as its segment (reduced layout).
+
+        A plain stop's interval that did not end as a plain stop's do (:meth:`_engage`) is not
+        handed: the run goes back to its own loop (:meth:`_return`).
+        """
+        if run.plain is not None:
+            self._return(lanes, run, b)
+            return
         t, y, hold = samples
         steps = int(lanes.accepted[b])
         segment = Segment(t, y[:, run.reduced], int(lanes.evals[b]), event, steps, hold)
@@ -1269,14 +1375,56 @@ class BatchEngine:
         """Hand run ``b`` the rests its lane settled, if any: its request is the lane's again.
 
         The run's phase (its own event functions) is then the one its lane integrates.
-        Returns whether the run goes on (its loop may fail on them: the lane stops).
+        Returns whether the run goes on (its loop may fail on them: the lane stops). A plain
+        stop has no loop to hand them or phase to ask: it goes back to its own loop
+        (:meth:`_return`), and does not go on.
         """
+        if run.plain is not None:
+            self._return(lanes, run, b)
+            return False
         if run.pieces:
             pieces, run.pieces = tuple(run.pieces), []
             self.advance(run, pieces)
             if run.request is None:
                 lanes.running[b] = False
         return run.request is not None
+
+    def _conclude(self, lanes: _Lanes, run: _Run, b: int) -> None:
+        """Run ``b``'s lane settled its rests and nothing slides on: hand them to its loop.
+
+        A plain stop's joints are then all stuck: its records end it
+        (:meth:`~vtm_pin.core.simulation.PlainStop.result`), or, if a lock was not at rest,
+        it goes back to its own loop (:meth:`_return`).
+        """
+        plain = run.plain
+        if plain is None:
+            self._sync(lanes, run, b)
+            return
+        begin = time.perf_counter()
+        pieces, run.pieces = tuple(run.pieces), []
+        try:
+            outcome: SimulationResult | VtmError | None = plain.result(pieces, run.problem.duration)
+        except VtmError as exc:
+            outcome = exc
+        self.seconds["hybrid"] += time.perf_counter() - begin
+        if outcome is None:
+            self._return(lanes, run, b)
+            return
+        lanes.running[b] = False
+        run.plain, run.outcome = None, outcome
+        self._ended(run)
+
+    def _return(self, lanes: _Lanes, run: _Run, b: int) -> None:
+        """Hand a plain stop whose life is not plain after all back to its own loop.
+
+        The loop starts again from t = 0 and its lane waits for the loop's first request, as
+        a lane whose interval ended (the caller's lanes that ended are loaded next): such a
+        run costs its first interval and what the engine ran of it twice.
+        """
+        run.restart()
+        lanes.running[b] = False
+        self.lane_python["plain_returned"] += 1
+        self.advance(run)
 
     def _samples(
         self, lanes: _Lanes, run: _Run, b: int
@@ -1311,6 +1459,10 @@ class BatchEngine:
             self.lane_python["intervals"] += (
                 len(segment) if isinstance(segment, tuple) else int(segment is not None)
             )
+        self._ended(run)
+
+    def _ended(self, run: _Run) -> None:
+        """Tell :attr:`finished` of a run that has its outcome (none yet: nothing)."""
         if run.outcome is not None and self.finished is not None:
             try:
                 self.finished(run)
@@ -1320,11 +1472,18 @@ class BatchEngine:
     def _fail(
         self, lanes: _Lanes, runs: Sequence[_Run], b: int, error: VtmError, finished: list[int]
     ) -> None:
-        """Run ``b`` fails in its lane's interval (after the rests it settled, as the scalar's)."""
+        """Run ``b`` fails in its lane's interval (after the rests it settled, as the scalar's).
+
+        A plain stop goes back to its own loop instead (:meth:`_return`), which meets the
+        failure itself.
+        """
+        finished.append(int(b))
+        if runs[b].plain is not None:
+            self._return(lanes, runs[b], b)
+            return
         self._sync(lanes, runs[b], b)
         lanes.running[b] = False
         self.advance(runs[b], error=error)
-        finished.append(int(b))
 
     def _step_limit(self, lanes: _Lanes, run: _Run, b: int) -> StepLimitError:
         """The scalar dop853's error for run ``b``'s interval (its first sample is its start)."""
