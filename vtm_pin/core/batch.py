@@ -89,7 +89,7 @@ import dataclasses
 import functools
 import math
 import time
-from collections.abc import Callable, Generator, Sequence
+from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,7 +102,7 @@ from ..numerics.integrators.dop853 import _Grid
 from ..numerics.integrators.fixed_step import locate
 from ..numerics.transitions.recursive import weightless
 from ..physics import body_kernel, chain_dynamics
-from ..physics.brakes import REST_RATE, ROUNDOFF, StateEventKind
+from ..physics.brakes import REST_RATE, ROUNDOFF, Brake, StateEventKind
 from ..physics.drives import short_circuit_torque
 from ..physics.friction import Coulomb, Viscous
 from ..physics.kinematics import JointChain, body_motions, cached_chain, cross, joint_chain
@@ -110,7 +110,15 @@ from ..physics.robot import Robot
 from .phase import WORKS
 from .problem import Problem
 from .results import SimulationResult
-from .simulation import PlainStop, Reply, Rested, SegmentRequest, hybrid_run, plain_stop
+from .simulation import (
+    PlainStop,
+    Reply,
+    Rested,
+    SegmentRequest,
+    hybrid_run,
+    motor_shorts,
+    plain_stop,
+)
 
 ENGINES = ("batched", "scalar")
 #: Fewest runs of one model a study gives a batch: fewer run faster on the scalar engine.
@@ -546,7 +554,13 @@ class _Run:
         self.engage_at = plain_stop(problem, transition, holding)
         #: A plain stop's records once the engine has taken over its life.
         self.plain: PlainStop | None = None
-        self.loop = self._loop()
+        #: Whether the engine loads its first interval itself (:meth:`BatchEngine._load_plain`):
+        #: a plain stop whose motors do not brake by short circuit (that interval is then
+        #: passive). Such a run has no loop unless it goes back to it.
+        self.direct = self.engage_at is not None and motor_shorts(problem.robot) is None
+        self.loop: Generator[SegmentRequest, Reply, SimulationResult] | None = (
+            None if self.direct else self._loop()
+        )
         self.request: SegmentRequest | None = None
         self.outcome: SimulationResult | VtmError | None = None
         self.grid: _Grid | None = None
@@ -568,11 +582,18 @@ class _Run:
             holding=self.holding,
         )
 
+    @property
+    def left(self) -> bool:
+        """Whether its loop is not what runs it: a plain stop the engine runs itself."""
+        return self.plain is not None or self.loop is None
+
     def restart(self) -> None:
         """Start its own loop again from t = 0 (a plain stop that is no longer plain)."""
-        self.loop.close()
+        if self.loop is not None:
+            self.loop.close()
         self.loop = self._loop()
         self.engage_at = self.plain = self.request = None
+        self.direct = False
         self.pieces = []
 
     def sample(self, lanes: _Lanes, b: int) -> None:
@@ -585,6 +606,7 @@ class _Run:
     def advance(self, segment: Reply | None = None, error: VtmError | None = None) -> None:
         """Send the loop its segment(s) (or error); keep its next request or its outcome."""
         try:
+            assert self.loop is not None, "a run the engine runs itself has no loop to resume"
             if error is not None:
                 self.request = self.loop.throw(error)
             elif segment is None:
@@ -690,6 +712,10 @@ class BatchEngine:
             again = []
             for b in waiting:
                 run = runs[b]
+                if run.direct:
+                    self._load_plain(lanes, b, run)
+                    fresh.append(b)
+                    continue
                 if run.request is None:
                     continue
                 request = run.request
@@ -750,7 +776,9 @@ class BatchEngine:
         lanes.count[b] = run.reduced.size
         lanes.steps[b] = lanes.accepted[b] = 0
         if not lanes.constants[b]:
-            self._load_constants(lanes, b, phase)
+            machine = phase.machine
+            brakes = machine.brakes if machine is not None else {}
+            self._load_constants(lanes, b, phase.robot.gear_ratio, brakes)
             lanes.constants[b] = True
         self._load_brakes(lanes, b, phase)
         lanes.running[b] = True
@@ -759,14 +787,42 @@ class BatchEngine:
         run.ts, run.ys = [], []
         run.holds = [] if self.holding else None
 
+    def _load_plain(self, lanes: _Lanes, b: int, run: _Run) -> None:
+        """Write a plain stop's first interval into its lane, as its loop's first request has it.
+
+        The stop is signalled at t = 0: every drive drops out, no brake has engaged, no motor
+        brakes (:attr:`_Run.direct`), so the phase to its brakes' engagement is passive: every
+        joint free, y = (q0, v0), no accumulator integrated, no state event. The lane is a new
+        one (its brake and short-circuit figures at their initial zeros).
+        """
+        begin = time.perf_counter()
+        n, problem = self.n, run.problem
+        run.direct = False
+        run.reduced = np.arange(2 * n)
+        lanes.y[b, :n], lanes.y[b, n : 2 * n] = problem.q0, problem.v0
+        lanes.t[b], lanes.t1[b] = 0.0, run.engage_at
+        lanes.active[b, : 2 * n] = True
+        lanes.count[b] = 2 * n
+        robot = problem.robot
+        brakes = {robot.joint_index(brake.joint): brake for brake in problem.brakes}
+        self._load_constants(lanes, b, robot.gear_ratio, brakes)
+        lanes.constants[b] = lanes.running[b] = True
+        run.output_dt = run.integrator.output_dt
+        _start_grid(lanes, b, run, 0.0, lanes.t1[b])
+        self.seconds["lanes"] += time.perf_counter() - begin
+
     @staticmethod
-    def _load_constants(lanes: _Lanes, b: int, phase: object) -> None:
-        """Gear ratios and brake friction constants of run ``b`` (its lane is its own)."""
-        lanes.ratio[b] = phase.robot.gear_ratio  # type: ignore[attr-defined]
-        machine = phase.machine  # type: ignore[attr-defined]
-        for j, brake in machine.brakes.items() if machine is not None else ():
-            if not brake.ideal:
-                friction = brake.friction
+    def _load_constants(
+        lanes: _Lanes, b: int, ratio: np.ndarray, brakes: Mapping[int, Brake]
+    ) -> None:
+        """Gear ratios and brake friction constants (``brakes`` by joint) of run ``b``.
+
+        Its lane is its own: they are the same in every phase.
+        """
+        lanes.ratio[b] = ratio
+        for j, brake in brakes.items():
+            friction = brake.friction
+            if isinstance(friction, Coulomb):  # the engine's laws (fallback_reason), not ideal
                 lanes.torque[b, j] = friction.sliding_torque
                 lanes.breakaway[b, j] = friction.breakaway_torque
                 lanes.ramp[b, j] = friction.ramp
@@ -1002,7 +1058,8 @@ class BatchEngine:
                 y_b[:, 2 * n :] = lanes.y[b, 2 * n :] = 0.0  # loop has them); now integrated
             counts = (int(lanes.evals[b]), int(lanes.accepted[b]))
             run.plain = PlainStop(run.problem, self.integrator.name, (t, y_b), counts)
-            run.loop.close()
+            if run.loop is not None:
+                run.loop.close()
             run.request = None
             lanes.t1[b] = run.problem.duration
         self.lane_python["plain_stops"] += rows.size
@@ -1361,7 +1418,7 @@ class BatchEngine:
         A plain stop's interval that did not end as a plain stop's do (:meth:`_engage`) is not
         handed: the run goes back to its own loop (:meth:`_return`).
         """
-        if run.plain is not None:
+        if run.left:
             self._return(lanes, run, b)
             return
         t, y, hold = samples
@@ -1379,7 +1436,7 @@ class BatchEngine:
         stop has no loop to hand them or phase to ask: it goes back to its own loop
         (:meth:`_return`), and does not go on.
         """
-        if run.plain is not None:
+        if run.left:
             self._return(lanes, run, b)
             return False
         if run.pieces:
@@ -1478,7 +1535,7 @@ class BatchEngine:
         failure itself.
         """
         finished.append(int(b))
-        if runs[b].plain is not None:
+        if runs[b].left:
             self._return(lanes, runs[b], b)
             return
         self._sync(lanes, runs[b], b)
@@ -1818,7 +1875,8 @@ def _run_batch(
         batch.finished = functools.partial(_report, on_done, clock)
     try:
         for run in runs:
-            batch.advance(run)
+            if not run.direct:  # a plain stop the engine starts itself has no loop
+                batch.advance(run)
         batch.run(runs)
     except _Finished as stop:
         raise stop.error from None

@@ -41,7 +41,14 @@ from ..physics.brakes import (
     BrakeMode,
     mode_of_motion,
 )
-from ..physics.drives import DriveHold, DriveLaw, DriveOff, DriveRamp, short_circuit
+from ..physics.drives import (
+    DriveHold,
+    DriveLaw,
+    DriveOff,
+    DriveRamp,
+    ShortCircuit,
+    short_circuit,
+)
 from ..physics.robot import Robot
 from ..physics.stop import Stop
 from .holonomic import (
@@ -116,6 +123,18 @@ class _RestLock(NamedTuple):
         )
 
 
+def motor_shorts(robot: Robot) -> ShortCircuit | None:
+    """The motors' short-circuit braking (:func:`short_circuit`), kept in the robot's cache.
+
+    A kinematic entry: the robot's payload variants share it (their drives and gear ratios
+    are its own).
+    """
+    dynamic: ShortCircuit | None = robot.cache.get(
+        "short_circuit", lambda: short_circuit(robot), kinematic=True
+    )
+    return dynamic
+
+
 def joint_labels(robot: Robot) -> tuple[RowLabel, ...]:
     """The joints' constraint-row labels, in joint order (kept in the robot's cache)."""
     labels: tuple[RowLabel, ...] = robot.cache.get(
@@ -153,11 +172,7 @@ class _Hybrid:
         #: The motors' short-circuit braking (the robot's, kept in its cache with the entries
         #: its payload variants share: their drives and gear ratios are its own), and per
         #: joint whether its motor is shorted now.
-        self.dynamic = (
-            robot.cache.get("short_circuit", lambda: short_circuit(robot), kinematic=True)
-            if stop is not None
-            else None
-        )
+        self.dynamic = motor_shorts(robot) if stop is not None else None
         self.dynamic_on = np.zeros(n, dtype=bool)
         self.rule = TRANSITIONS[rule]
         self.rule_name = rule
