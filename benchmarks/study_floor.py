@@ -132,8 +132,9 @@ def pinocchio_work(
     Also the engine's lane-by-lane work per case (:attr:`BatchOutcome.lane_python`), and the
     states the compiled kernel evaluated (``kernel states``).
 
-    The states are the right-hand sides and the output samples (whose holding torques the
-    table reads): an engine evaluates each at least once. The batched engine takes 1 + k RNEA
+    The states are the right-hand sides and the output samples (whose holding torques a
+    table of the run reads): an engine evaluates each at least once. (A study's records read
+    none, and its runs, as these, evaluate none there: the floor keeps counting them.) The batched engine takes 1 + k RNEA
     passes for a state with locks (b and k free columns of M), or one compiled pass with the
     ``fast`` extra (:mod:`vtm_pin.physics.chain_dynamics`).
     """
@@ -148,10 +149,11 @@ def pinocchio_work(
         )
         for t in tasks
     ]
-    outcome = run_many(
+    outcome = run_many(  # as a study runs them: no holding torques at the samples
         [s.problem for s in scenarios],
         [s.integrator for s in scenarios],
         transition=scenarios[0].transition,
+        holding=False,
     )
     results = [r for r in outcome.results if isinstance(r, SimulationResult)]
     states = statistics.fmean(r.rhs_evals + len(r.t) for r in results)

@@ -1182,7 +1182,8 @@ class BatchEngine:
             steps = int(lanes.accepted[b])  # the ended interval's (reset by the restart)
             evals = int(lanes.evals[b])
             runs[b].pieces.append(Rested(t_b, y_b, hold, evals, steps, int(j), lanes.lam[b].copy()))
-            runs[b].reduced = np.flatnonzero(lanes.active[b])
+            if not runs[b].left:  # its layout for the segments handed to its loop
+                runs[b].reduced = np.flatnonzero(lanes.active[b])
         self.lane_python["settled_rests"] += settled.size
         inner = self.seconds["dynamics"] - dynamics
         self.seconds["lanes"] += time.perf_counter() - begin - inner
