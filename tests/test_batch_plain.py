@@ -23,7 +23,7 @@ import yaml
 from vtm_pin.core import batch
 from vtm_pin.core.batch import BatchOutcome, run_many
 from vtm_pin.core.results import SimulationResult
-from vtm_pin.core.simulation import plain_stop
+from vtm_pin.core.simulation import motor_shorts, plain_stop
 from vtm_pin.exceptions import StepLimitError
 from vtm_pin.physics.brakes import BrakeEventKind
 from vtm_pin.scene.scenario import SCENARIOS_DIR, build_scenario, merge_includes
@@ -240,3 +240,14 @@ def test_which_runs_are_plain_stops(scenarios: list[Any]) -> None:
     }
     for name, changed in not_plain.items():
         assert plain_stop(changed, "kkt", holding=False) is None, name
+
+
+def test_a_robot_whose_motors_do_not_brake_keeps_that_answer(scenarios: list[Any]) -> None:
+    """``motor_shorts`` is asked once a run: None (the UR10's drives do not short) is kept
+    too, not built again on every call."""
+    robot = scenarios[0].problem.robot
+    assert motor_shorts(robot) is None
+    misses = robot.cache.misses
+    assert motor_shorts(robot) is None and motor_shorts(robot) is None
+    assert robot.cache.misses == misses
+    assert motor_shorts(scenarios[-1].problem.robot) is not None  # its two shorted motors

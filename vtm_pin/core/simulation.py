@@ -127,12 +127,13 @@ def motor_shorts(robot: Robot) -> ShortCircuit | None:
     """The motors' short-circuit braking (:func:`short_circuit`), kept in the robot's cache.
 
     A kinematic entry: the robot's payload variants share it (their drives and gear ratios
-    are its own).
+    are its own). Kept in a 1-tuple: the cache takes None for an entry not kept, and most
+    robots' motors do not brake.
     """
-    dynamic: ShortCircuit | None = robot.cache.get(
-        "short_circuit", lambda: short_circuit(robot), kinematic=True
+    kept: tuple[ShortCircuit | None] = robot.cache.get(
+        "short_circuit", lambda: (short_circuit(robot),), kinematic=True
     )
-    return dynamic
+    return kept[0]
 
 
 def joint_labels(robot: Robot) -> tuple[RowLabel, ...]:
