@@ -134,9 +134,9 @@ def pinocchio_work(
 
     The states are the right-hand sides and the output samples (whose holding torques a
     table of the run reads): an engine evaluates each at least once. (A study's records read
-    none, and its runs, as these, evaluate none there: the floor keeps counting them.) The batched engine takes 1 + k RNEA
-    passes for a state with locks (b and k free columns of M), or one compiled pass with the
-    ``fast`` extra (:mod:`vtm_pin.physics.chain_dynamics`).
+    none, and its runs, as these, evaluate none there: the floor keeps counting them.) The
+    batched engine takes 1 + k RNEA passes for a state with locks (b and k free columns of
+    M), or one compiled pass with the ``fast`` extra (:mod:`vtm_pin.physics.chain_dynamics`).
     """
     robots = RobotCache()
     scenarios = [

@@ -207,9 +207,15 @@ def test_a_robots_batch_key_from_its_cache_is_its_models(monkeypatch: pytest.Mon
     assert robot_batch_key(first) != robot_batch_key(later)
 
 
-def test_a_model_with_min_lanes_runs_keeps_its_own_batch_and_the_rest_are_pooled() -> None:
-    """MIN_LANES runs of one payload class are a batch of their own (ABA: their lanes cost
-    least); the runs of three other payloads, too few each, are pooled in one batch."""
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_model_with_min_lanes_runs_keeps_its_own_batch_only_without_the_kernel(
+    compiled: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without the compiled kernel, MIN_LANES runs of one payload class are a batch of their
+    own (ABA: their lanes cost least) and the runs of three other payloads, too few each, are
+    pooled in one batch. With it, a lane costs the same pooled (every state goes through the
+    kernel with its own bodies' parameters): all of them are one batch."""
+    monkeypatch.setattr(chain_dynamics, "runs", lambda: compiled)
     scenario = vp.load_scenario(SCENARIOS_DIR / "ur10_annex_b.yaml")
     rng = np.random.default_rng(3)
     others = [
@@ -221,13 +227,17 @@ def test_a_model_with_min_lanes_runs_keeps_its_own_batch_and_the_rest_are_pooled
     keys = _model_keys(problems, reasons)
     assert keys[MIN_LANES:] == [robot_model_key(p.robot) for p in others]
     groups = _groups(problems, [scenario.integrator] * len(problems), reasons, 1, keys)
-    assert sorted(groups.values()) == [
-        list(range(MIN_LANES)),
-        list(range(MIN_LANES, MIN_LANES + 3)),
-    ]
+    if compiled:
+        assert list(groups.values()) == [list(range(MIN_LANES + 3))]
+    else:
+        assert sorted(groups.values()) == [
+            list(range(MIN_LANES)),
+            list(range(MIN_LANES, MIN_LANES + 3)),
+        ]
     assert reasons == [None] * len(problems)
     _groups(problems, [scenario.integrator] * len(problems), reasons, 4, keys)
-    assert reasons[-3:] == [FEW_LANES.format(min_lanes=4)] * 3 and reasons[0] is None
+    few = [FEW_LANES.format(min_lanes=4)] * 3
+    assert reasons[-3:] == ([None] * 3 if compiled else few) and reasons[0] is None
 
 
 def test_numba_that_cannot_run_here_leaves_the_numpy_path_with_one_warning(

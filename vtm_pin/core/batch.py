@@ -54,9 +54,11 @@ acceleration at a = 0 with gravity, computed over the lanes with NumPy
 even with no joint locked (ABA cannot take a lane's own inertias): measured (UR10, 300
 lanes, a shared machine), its dynamics cost ~15 us a lane against ABA's ~2 us with no joint
 locked, ~10-12 against ~4-8 us with locks (the inertia terms ~4.5 us of it), while a run
-whose model is the batch's costs nothing more. Hence a model with
+whose model is the batch's costs nothing more. Hence, on this NumPy path, a model with
 enough runs for a batch of its own keeps one (the six payload classes of
-``studies/ur10_envelope.yaml``: pooled, the study took 13 % more CPU time). Models with a
+``studies/ur10_envelope.yaml``: pooled, the study took 13 % more CPU time). With the compiled
+kernel (the ``fast`` extra) every lane costs the same, pooled or not, and every run is pooled
+(:func:`_groups`: fewer, larger batches, whose steps cost less per lane). Models with a
 joint type that the NumPy chain does not compute batch with runs of the very same model only
 (:func:`model_key`).
 
@@ -1711,8 +1713,9 @@ def run_many(
     """Run many problems; the batched engine takes those it can (see :func:`fallback_reason`).
 
     Runs whose models differ at most in their bodies' inertias (:func:`batch_key`) and that
-    have the same integrator settings advance together (a model with at least
-    :data:`MIN_LANES` runs in a batch of its own: :func:`_groups`). A run's ``wall_time`` is
+    have the same integrator settings advance together (without the compiled kernel, a model
+    with at least :data:`MIN_LANES` runs in a batch of its own: :func:`_groups`). A run's
+    ``wall_time`` is
     its share of its batch's time. Groups of fewer than ``min_lanes`` runs go to the scalar
     engine (reason :data:`FEW_LANES`): a batch of a few lanes is slower than the scalar engine.
 
@@ -1826,20 +1829,26 @@ def _groups(
 ) -> dict[tuple[bytes, object], list[int]]:
     """The batches: indices of runs of one integrator, at least ``min_lanes``.
 
-    A model with at least :data:`MIN_LANES` runs gets a batch of its own (:func:`model_key`:
-    its lanes cost least, ABA where nothing is locked); the runs of the other models are pooled
-    by :func:`batch_key` (their lanes carry their own inertias, which costs more per lane
-    than a batch of their own model but less than the scalar engine). The runs of smaller
-    groups are given the reason :data:`FEW_LANES` (in ``reasons``). ``keys``: the problems'
-    robots' :func:`robot_model_key`.
+    Without the compiled kernel, a model with at least :data:`MIN_LANES` runs gets a batch of
+    its own (:func:`model_key`: its lanes cost least, ABA where nothing is locked); the runs of
+    the other models are pooled by :func:`batch_key` (their lanes carry their own inertias,
+    which costs more per lane than a batch of their own model but less than the scalar
+    engine). With it (:func:`~vtm_pin.physics.chain_dynamics.runs`), every state goes through
+    the kernel with its lane's own bodies' parameters, whatever its batch: a lane costs the
+    same pooled, its motion is the same to the bit, and a batch's steps cost less per lane
+    the more lanes share them, so every run is pooled (measured, issue 27: the UR10 envelope
+    study's six payload classes in one batch, ~8 % less time a case than in six). The runs
+    of smaller groups are given the reason :data:`FEW_LANES` (in ``reasons``). ``keys``: the
+    problems' robots' :func:`robot_model_key`.
     """
+    own = not chain_dynamics.runs()  # a batch of its own for a model with enough runs
     exact: dict[tuple[bytes, object], list[int]] = {}
     for index, reason in enumerate(reasons):
         if reason is None:
             exact.setdefault((keys[index], integrators[index]), []).append(index)
     groups: dict[tuple[bytes, object], list[int]] = {}
     for (model, integrator), indices in exact.items():
-        if len(indices) >= MIN_LANES:
+        if own and len(indices) >= MIN_LANES:
             groups[b"model " + model, integrator] = indices
         else:
             pool = (robot_batch_key(problems[indices[0]].robot), integrator)
