@@ -97,3 +97,25 @@ def run_reslip(integrator, duration: float = 3.0) -> SimulationResult:
     q0, v0 = Q0_RESLIP, V0_RESLIP
     problem = Problem(robot("planar_3r"), q0, v0, duration, brakes=(RESLIP_BRAKE,), stop=Stop(0.0))
     return simulate(problem, integrator)
+
+
+def viscous_and_shorted(raw: dict, ramped: bool = False) -> dict:
+    """A UR10 scenario (parsed) with two viscous brakes and two motors shorted on drop-out.
+
+    ``ramped``: its brakes' normal force also ramps up over 20 ms, and they engage at staggered
+    times (30-60 ms), which makes it no plain stop.
+    """
+    raw = dict(raw)
+    brakes = {joint: dict(brake) for joint, brake in raw["brakes"].items()}
+    for k, brake in enumerate(brakes.values()):
+        if ramped:
+            brake.update(delay=0.03 + 0.006 * k, ramp=0.02)
+        if k in (1, 3):
+            brake.update(friction="viscous", viscous_velocity=400.0)
+    raw["brakes"] = brakes
+    raw["drives"] = {
+        joint: {"gear_ratio": 101, "rotor_inertia": 1.0e-4 if k < 3 else 3.0e-5}
+        | ({"short_circuit_torque": 0.5, "short_circuit_speed": 300.0} if k in (0, 2) else {})
+        for k, joint in enumerate(brakes)
+    }
+    return raw

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from conftest import viscous_and_shorted
 
 from vtm_pin.core import batch
 from vtm_pin.core.batch import BatchOutcome, run_many
@@ -50,25 +51,9 @@ def _base() -> dict[str, Any]:
     return dict(merge_includes(yaml.safe_load(BASE.read_text()), str(BASE), SCENARIOS_DIR))
 
 
-def _viscous_shorted(raw: dict[str, Any]) -> dict[str, Any]:
-    """A plain stop with two viscous brakes and two motors that brake by short circuit."""
-    raw = dict(raw)
-    brakes = {joint: dict(brake) for joint, brake in raw["brakes"].items()}
-    for k, brake in enumerate(brakes.values()):
-        if k in (1, 3):
-            brake.update(friction="viscous", viscous_velocity=400.0)
-    raw["brakes"] = brakes
-    raw["drives"] = {
-        joint: {"gear_ratio": 101, "rotor_inertia": 1.0e-4 if k < 3 else 3.0e-5}
-        | ({"short_circuit_torque": 0.5, "short_circuit_speed": 300.0} if k in (0, 2) else {})
-        for k, joint in enumerate(brakes)
-    }
-    return raw
-
-
 def _scenarios() -> list[Any]:
     raws = [resolve_case(_base(), case) for case in CASES]
-    raws += [_viscous_shorted(raws[k]) for k in (0, 1)]
+    raws += [viscous_and_shorted(raws[k]) for k in (0, 1)]  # plain, with motors that brake
     return [build_scenario(raw, source="plain", base_dir=SCENARIOS_DIR) for raw in raws]
 
 

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from conftest import viscous_and_shorted
 
 from vtm_pin.core.batch import run_many
 from vtm_pin.core.results import SimulationResult
@@ -119,18 +120,7 @@ def outcomes() -> tuple[Any, Any]:
 
 def _varied(index: int, case: dict[str, Any]) -> dict[str, Any]:
     """A case with ramped, staggered, partly viscous brakes, shorted motors, its own payload."""
-    raw = resolve_case(_base(), case)
-    brakes = {joint: dict(brake) for joint, brake in raw["brakes"].items()}
-    for k, brake in enumerate(brakes.values()):
-        brake.update(delay=0.03 + 0.006 * k, ramp=0.02)
-        if k in (1, 3):
-            brake.update(friction="viscous", viscous_velocity=400.0)
-    raw["brakes"] = brakes
-    raw["drives"] = {
-        joint: {"gear_ratio": 101, "rotor_inertia": 1.0e-4 if k < 3 else 3.0e-5}
-        | ({"short_circuit_torque": 0.5, "short_circuit_speed": 300.0} if k in (0, 2) else {})
-        for k, joint in enumerate(brakes)
-    }
+    raw = viscous_and_shorted(resolve_case(_base(), case), ramped=True)
     raw["payload"] = {"mass": 2.0 + 1.5 * index, "com": [0.0, 0.01 * index, 0.05]}
     return raw
 

@@ -108,6 +108,7 @@ from ..physics.brakes import REST_RATE, ROUNDOFF, Brake, StateEventKind
 from ..physics.drives import short_circuit_torque
 from ..physics.friction import Coulomb, Viscous
 from ..physics.kinematics import JointChain, body_motions, cached_chain, cross, joint_chain
+from ..physics.payload import body_parameters
 from ..physics.robot import Robot
 from .phase import WORKS
 from .problem import Problem
@@ -202,12 +203,14 @@ def model_key(model: pin.Model, inertias: bool = True) -> bytes:
 
 
 def robot_model_key(robot: Robot) -> bytes:
-    """:func:`model_key` of the robot's model; its part without inertias kept in its cache.
+    """:func:`model_key` of the robot's model, from the entries of its cache.
 
-    That part is the same for the robot's payload copies (a kinematic entry), and costs
-    ~0.1 ms to form; the inertias' part, ~10 us, is formed per call.
+    The part without inertias is the same for the robot's payload copies (a kinematic entry),
+    and costs ~0.1 ms to form; the inertias' part is its bodies' dynamic parameters
+    (:func:`~vtm_pin.physics.payload.body_parameters`: a payload copy has them from
+    :func:`~vtm_pin.physics.payload.attach_payload`, no inertia read again).
     """
-    return _robot_fixed_key(robot) + _inertias_key(robot.model)
+    return _robot_fixed_key(robot) + body_parameters(robot).tobytes()
 
 
 def robot_batch_key(robot: Robot) -> bytes:
@@ -247,7 +250,12 @@ def _fixed_key(model: pin.Model) -> bytes:
 
 def _inertias_key(model: pin.Model) -> bytes:
     """The bodies' inertias of :func:`model_key`: their dynamic parameters' bytes."""
-    return b"".join(inertia.toDynamicParameters().tobytes() for inertia in model.inertias)
+    return _parameters(model).tobytes()
+
+
+def _parameters(model: pin.Model) -> np.ndarray:
+    """The model's bodies' dynamic parameters, shape (njoints, 10) (as ``body_parameters``)."""
+    return np.array([inertia.toDynamicParameters() for inertia in model.inertias])
 
 
 def batch_key(model: pin.Model) -> bytes:
@@ -287,10 +295,17 @@ class _Dynamics:
         threads: Threads of Pinocchio's parallel algorithms.
         models: Each lane's model, which may differ from ``model`` in its bodies' inertias
             only (:func:`batch_key`); None if every lane's is ``model``.
+        parameters: Each lane's bodies' dynamic parameters, those of its model (as
+            :func:`~vtm_pin.physics.payload.body_parameters` keeps them), if known; read from
+            the models if not.
     """
 
     def __init__(
-        self, model: pin.Model, threads: int, models: Sequence[pin.Model] | None = None
+        self,
+        model: pin.Model,
+        threads: int,
+        models: Sequence[pin.Model] | None = None,
+        parameters: Sequence[np.ndarray] | None = None,
     ) -> None:
         self.n = model.nv
         self.threads = threads
@@ -311,11 +326,12 @@ class _Dynamics:
         if chain_dynamics.runs() and self.chain is None:
             self.chain = joint_chain(model)
         self.compiled = chain_dynamics.runs() and self.chain is not None
+        # By model: a study's lanes share one per payload class, or have one each.
+        each = {id(m): p for m, p in zip(models or (), parameters or (), strict=False)}
         some = [model, *(models if models is not None and self.joints else ())]
-        each: dict[int, np.ndarray] = {}  # by model: a study's lanes share one per payload
         for m in some:
             if id(m) not in each:
-                each[id(m)] = np.array([inertia.toDynamicParameters() for inertia in m.inertias])
+                each[id(m)] = _parameters(m)
         self.parameters = np.array([each[id(m)] for m in some])
         self.armature = np.array(model.armature)
         #: Batched Pinocchio calls made, and the states they evaluated; the states the
@@ -636,6 +652,7 @@ class BatchEngine:
             differ from ``model`` in their bodies' inertias (:func:`batch_key`).
         holding: False: the output samples get no holding torques (NaN, no right-hand side
             evaluated for them; see :func:`run_many`).
+        parameters: Each run's bodies' dynamic parameters, if known (see :class:`_Dynamics`).
     """
 
     def __init__(
@@ -645,8 +662,9 @@ class BatchEngine:
         threads: int = 1,
         models: Sequence[pin.Model] | None = None,
         holding: bool = True,
+        parameters: Sequence[np.ndarray] | None = None,
     ) -> None:
-        self.dynamics = _Dynamics(model, threads, models)
+        self.dynamics = _Dynamics(model, threads, models, parameters)
         self.integrator = integrator
         self.holding = holding
         #: Called with each run as soon as it has its outcome (see :func:`run_many`).
@@ -1770,7 +1788,8 @@ def run_many(
         robots = [problems[i].robot for i in indices]
         models = [robot.model for robot in robots]
         base = _base_model(robots, [keys[i] for i in indices])
-        batch = BatchEngine(base, integrator, threads, models, holding)  # type: ignore[arg-type]
+        parameters = [body_parameters(robot) for robot in robots]  # kept by the robots
+        batch = BatchEngine(base, integrator, threads, models, holding, parameters)  # type: ignore[arg-type]
         clock = _Clock(batch, started)
         _run_batch(batch, runs, problems, reasons, on_done, clock)
         parts = clock.parts_now()

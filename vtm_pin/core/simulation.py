@@ -735,8 +735,9 @@ class PlainStop:
     the engine hands it, this makes the records that :func:`hybrid_run` makes of the same
     life, to the bit: the state before the events at t = 0, the samples with their free joints
     and brake modes, the brakes' engage and stick events, the locks at rest, and the frozen
-    interval to the end (tests/test_batch.py compares the two). It makes no phase and no
-    decision: ~0.3 ms of a UR10 case's ~1.6 (issue 27).
+    interval to the end (tests/test_batch_plain.py compares the two). It makes no phase
+    and no decision: with the engine's own start and engagement (:mod:`vtm_pin.core.batch`), a
+    UR10 study case takes 11-14 % less time (issue 27, ``benchmarks/interleaved.py``).
 
     Args:
         problem: The run.

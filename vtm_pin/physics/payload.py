@@ -218,8 +218,8 @@ def attach_payload(robot: Robot, payload: Payload) -> Robot:
         jid = frame.parentJoint
         placed = placement.act(body)
         model.inertias[jid] = model.inertias[jid] + placed
-        parameters = body_parameters(robot).copy()
-        parameters[jid] += placed.toDynamicParameters()
+        parameters = body_parameters(robot).copy()  # the other bodies are the robot's
+        parameters[jid] = model.inertias[jid].toDynamicParameters()
         parameters.flags.writeable = False
     loaded = dataclasses.replace(robot, model=model)
     loaded.cache.share_kinematics(robot.cache)  # the same joints: its kinematic entries hold
@@ -237,11 +237,9 @@ def body_parameters(robot: Robot) -> np.ndarray:
 
     Pinocchio's ``toDynamicParameters`` of each joint's body (joint 0, the world, first):
     mass [kg], first moment m c [kg m] and rotational inertia about the joint's origin
-    [kg m^2], shape (njoints, 10). The parameters are linear in the inertia, so those of a
-    robot with a payload are its robot's plus the placed payload's (:func:`attach_payload`
-    keeps them so; ~20 us a drawn payload's report less than reading its model's bodies
-    again). They equal the loaded model's own up to rounding (a few ulps: Pinocchio sums
-    two inertias about their common centre of mass).
+    [kg m^2], shape (njoints, 10), to the bit. A robot with a payload has them from
+    :func:`attach_payload`, which reads only the body it changed (its report's gravity bound,
+    its batch key and its lane's compiled dynamics then read no inertia).
     """
 
     def read() -> np.ndarray:
