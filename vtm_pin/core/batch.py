@@ -295,17 +295,10 @@ class _Dynamics:
         threads: Threads of Pinocchio's parallel algorithms.
         models: Each lane's model, which may differ from ``model`` in its bodies' inertias
             only (:func:`batch_key`); None if every lane's is ``model``.
-        parameters: Each lane's bodies' dynamic parameters, those of its model (as
-            :func:`~vtm_pin.physics.payload.body_parameters` keeps them), if known; read from
-            the models if not.
     """
 
     def __init__(
-        self,
-        model: pin.Model,
-        threads: int,
-        models: Sequence[pin.Model] | None = None,
-        parameters: Sequence[np.ndarray] | None = None,
+        self, model: pin.Model, threads: int, models: Sequence[pin.Model] | None = None
     ) -> None:
         self.n = model.nv
         self.threads = threads
@@ -326,9 +319,8 @@ class _Dynamics:
         if chain_dynamics.runs() and self.chain is None:
             self.chain = joint_chain(model)
         self.compiled = chain_dynamics.runs() and self.chain is not None
-        # By model: a study's lanes share one per payload class, or have one each.
-        each = {id(m): p for m, p in zip(models or (), parameters or (), strict=False)}
         some = [model, *(models if models is not None and self.joints else ())]
+        each: dict[int, np.ndarray] = {}  # by model: a study's lanes share one per payload
         for m in some:
             if id(m) not in each:
                 each[id(m)] = _parameters(m)
@@ -652,7 +644,6 @@ class BatchEngine:
             differ from ``model`` in their bodies' inertias (:func:`batch_key`).
         holding: False: the output samples get no holding torques (NaN, no right-hand side
             evaluated for them; see :func:`run_many`).
-        parameters: Each run's bodies' dynamic parameters, if known (see :class:`_Dynamics`).
     """
 
     def __init__(
@@ -662,9 +653,8 @@ class BatchEngine:
         threads: int = 1,
         models: Sequence[pin.Model] | None = None,
         holding: bool = True,
-        parameters: Sequence[np.ndarray] | None = None,
     ) -> None:
-        self.dynamics = _Dynamics(model, threads, models, parameters)
+        self.dynamics = _Dynamics(model, threads, models)
         self.integrator = integrator
         self.holding = holding
         #: Called with each run as soon as it has its outcome (see :func:`run_many`).
@@ -1788,8 +1778,7 @@ def run_many(
         robots = [problems[i].robot for i in indices]
         models = [robot.model for robot in robots]
         base = _base_model(robots, [keys[i] for i in indices])
-        parameters = [body_parameters(robot) for robot in robots]  # kept by the robots
-        batch = BatchEngine(base, integrator, threads, models, holding, parameters)  # type: ignore[arg-type]
+        batch = BatchEngine(base, integrator, threads, models, holding)  # type: ignore[arg-type]
         clock = _Clock(batch, started)
         _run_batch(batch, runs, problems, reasons, on_done, clock)
         parts = clock.parts_now()
