@@ -8,6 +8,12 @@ and every lock record, compared with ``==`` (the two paths do the same arithmeti
 numbers, so any difference is a bug, not round-off). A stop that turns out not to be plain (a
 joint at rest when the brakes engage, a brake that cannot hold, a failure) goes back to its
 own loop, started again, and must end as that loop ends it.
+
+One exception, measured: when some runs of a batch engage plainly and others through their
+loops, the two kinds restart in different calls of the dynamics. With the compiled kernel each
+state is computed alone and the records are still equal to the bit; on the NumPy path a
+payload lane's terms are computed over the states of one call, whose round-off depends on
+them (event times moved by up to 4e-15 s). That test allows 1e-12 there (:data:`ROUNDOFF`).
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from vtm_pin.core.batch import BatchOutcome, run_many
 from vtm_pin.core.results import SimulationResult
 from vtm_pin.core.simulation import motor_shorts, plain_stop
 from vtm_pin.exceptions import StepLimitError
+from vtm_pin.physics import chain_dynamics
 from vtm_pin.physics.brakes import BrakeEventKind
 from vtm_pin.scene.scenario import SCENARIOS_DIR, build_scenario, merge_includes
 from vtm_pin.study.cases import resolve_case
@@ -72,31 +79,49 @@ def _loops_own(monkeypatch: pytest.MonkeyPatch, run: Any) -> BatchOutcome:
     return outcome
 
 
-def _assert_identical(one: SimulationResult, other: SimulationResult) -> None:
-    """Every field equal (NaN where NaN), the records made and compared too."""
+#: The NumPy path's round-off between two groupings of the same states (see the module
+#: docstring), relative above 1 [s, rad, rad/s, J, N m]: measured up to 7e-14.
+ROUNDOFF = 1e-12
+
+
+def _same(a: Any, b: Any, tolerance: float) -> None:
+    """``a == b`` (arrays, numbers; NaN where NaN), or within ``tolerance`` if it is > 0."""
+    if isinstance(a, np.ndarray) and a.dtype.kind == "f" and tolerance > 0.0:
+        np.testing.assert_allclose(a, b, rtol=tolerance, atol=tolerance)
+    elif isinstance(a, np.ndarray):
+        np.testing.assert_array_equal(a, b)
+    elif isinstance(a, float) and tolerance > 0.0:
+        assert a == pytest.approx(b, rel=tolerance, abs=tolerance, nan_ok=True)
+    else:
+        assert a == b or (a != a and b != b), (a, b)  # NaN where NaN
+
+
+def _assert_identical(
+    one: SimulationResult, other: SimulationResult, tolerance: float = 0.0
+) -> None:
+    """Every field equal (or within ``tolerance``), the records made and compared too."""
     for field in dataclasses.fields(SimulationResult):
         a, b = getattr(one, field.name), getattr(other, field.name)
         if field.name == "wall_time":
             continue
         if isinstance(a, np.ndarray):
             assert a.shape == b.shape and a.dtype == b.dtype, field.name
-            np.testing.assert_array_equal(a, b, err_msg=field.name)
+            _same(a, b, tolerance)
         elif field.name == "events":
             assert len(a) == len(b)
             for x, y in zip(a, b, strict=True):
-                for key in ("t", "lock", "locked_before", "kind", "rows", "activate"):
+                for key in ("lock", "locked_before", "kind", "rows", "activate"):
                     assert getattr(x, key) == getattr(y, key), key
-                np.testing.assert_array_equal(x.q, y.q)
-                np.testing.assert_array_equal(x.v_minus, y.v_minus)
-                for key in ("v_plus", "Lambda", "p_free_minus", "p_free_plus"):
-                    jump, twin = getattr(x.transition, key), getattr(y.transition, key)
-                    np.testing.assert_array_equal(jump, twin, err_msg=key)
-                assert x.transition.energy_loss == y.transition.energy_loss
+                for key in ("t", "q", "v_minus"):
+                    _same(getattr(x, key), getattr(y, key), tolerance)
+                for key in ("v_plus", "Lambda", "p_free_minus", "p_free_plus", "energy_loss"):
+                    _same(getattr(x.transition, key), getattr(y.transition, key), tolerance)
         elif field.name == "brake_events":
             assert len(a) == len(b)
             for x, y in zip(a, b, strict=True):
-                for u, w in zip(dataclasses.astuple(x), dataclasses.astuple(y), strict=True):
-                    assert u == w or (u != u and w != w), (x, y)  # NaN where NaN
+                assert (x.joint, x.kind) == (y.joint, y.kind)
+                for key in ("t", "v", "holding_torque", "static_torque"):
+                    _same(getattr(x, key), getattr(y, key), tolerance)
         else:
             assert a == b, field.name
 
@@ -163,9 +188,10 @@ def test_joints_at_rest_when_the_brakes_engage_go_to_their_loops(
     plain = _run(scenarios)
     own = _loops_own(monkeypatch, lambda: _run(scenarios))
     assert 0 < plain.lane_python["plain_stops"] < len(scenarios)
+    tolerance = 0.0 if chain_dynamics.runs() else ROUNDOFF
     for one, other in zip(plain.results, own.results, strict=True):
         assert isinstance(one, SimulationResult) and isinstance(other, SimulationResult)
-        _assert_identical(one, other)
+        _assert_identical(one, other, tolerance)
 
 
 def test_a_plain_stop_that_fails_fails_as_its_loop(
