@@ -164,28 +164,45 @@ def check_payload(robot: Robot, payload: Payload) -> str:
         raise PayloadError(
             "mass", f"{mass:g} kg is not allowed; give a finite mass in [0, {MAX_MASS:g}] kg"
         )
-    com = np.array(payload.com)
-    if not (np.all(np.isfinite(com)) and np.max(np.abs(com)) <= MAX_OFFSET):
+    if not all(math.isfinite(x) and abs(x) <= MAX_OFFSET for x in payload.com):
         raise PayloadError(
             "com",
-            f"{_format_vector(com)} m is not allowed; give finite coordinates, each within "
-            f"{MAX_OFFSET:g} m of the frame's origin",
+            f"{_format_vector(np.array(payload.com))} m is not allowed; give finite "
+            f"coordinates, each within {MAX_OFFSET:g} m of the frame's origin",
         )
     if payload.inertia is not None:
         _check_inertia(payload.inertia, mass)
     frame = payload_frame(robot, payload)
-    model = robot.model
-    if not model.existFrame(frame):
-        frames = ", ".join(f.name for f in model.frames)
-        raise PayloadError("frame", f"no frame '{excerpt(frame)}'; frames: {frames}")
-    if model.frames[model.getFrameId(frame)].parentJoint == 0:
-        moving = ", ".join(f.name for f in model.frames if f.parentJoint != 0)
-        raise PayloadError(
-            "frame",
-            f"frame '{excerpt(frame)}' is fixed to the ground, so a payload on it would never "
-            f"move; give a frame that a joint moves: {moving}",
-        )
+    _carrier(robot, frame)
     return frame
+
+
+def _carrier(robot: Robot, frame: str) -> tuple[int, pin.SE3]:
+    """The joint that moves ``frame`` and the frame's placement in it, checked.
+
+    Kept in the robot's kinematic cache by frame name (a study's cases attach to one frame;
+    a refused frame is not kept, see :class:`~vtm_pin.files.model_cache.ModelCache`).
+
+    Raises:
+        PayloadError: ``.key`` is ``frame``: no such frame, or it is fixed to the ground.
+    """
+
+    def find() -> tuple[int, pin.SE3]:
+        model = robot.model
+        if not model.existFrame(frame):
+            frames = ", ".join(f.name for f in model.frames)
+            raise PayloadError("frame", f"no frame '{excerpt(frame)}'; frames: {frames}")
+        found = model.frames[model.getFrameId(frame)]
+        if found.parentJoint == 0:
+            moving = ", ".join(f.name for f in model.frames if f.parentJoint != 0)
+            raise PayloadError(
+                "frame",
+                f"frame '{excerpt(frame)}' is fixed to the ground, so a payload on it would "
+                f"never move; give a frame that a joint moves: {moving}",
+            )
+        return int(found.parentJoint), pin.SE3(found.placement)
+
+    return robot.cache.get(("payload_carrier", frame), find, kinematic=True)
 
 
 def attach_payload(robot: Robot, payload: Payload) -> Robot:
@@ -207,16 +224,13 @@ def attach_payload(robot: Robot, payload: Payload) -> Robot:
         PayloadError: The payload is not physical or its frame is not in the model
             (see :func:`check_payload`).
     """
-    frame_name = check_payload(robot, payload)
+    jid, placement = _carrier(robot, check_payload(robot, payload))
     model = pin.Model(robot.model)
     parameters = None  # the bodies' parameters: the robot's, the payload's added
     if payload.mass > 0.0:  # mass 0 has no inertia either (check_payload): nothing to add
-        frame = model.frames[model.getFrameId(frame_name)]
-        rotational = np.zeros((3, 3)) if payload.inertia is None else payload.inertia
-        body = _body_inertia(payload.mass, rotational)
-        placement = frame.placement * pin.SE3(np.eye(3), np.array(payload.com))
-        jid = frame.parentJoint
-        placed = placement.act(body)
+        body = _body_inertia(payload.mass, payload.inertia)
+        body.lever = np.array(payload.com)
+        placed = placement.act(body)  # in the joint's frame
         model.inertias[jid] = model.inertias[jid] + placed
         parameters = body_parameters(robot).copy()  # the other bodies are the robot's
         parameters[jid] = model.inertias[jid].toDynamicParameters()
@@ -345,16 +359,18 @@ def _check_inertia(inertia: np.ndarray, mass: float) -> None:
         )
 
 
-def _body_inertia(mass: float, rotational: np.ndarray) -> pin.Inertia:
+def _body_inertia(mass: float, rotational: np.ndarray | None) -> pin.Inertia:
     """Spatial inertia of a body [kg, kg m^2] with its centre of mass at its frame's origin.
 
-    Built through the attributes, since ``pin.Inertia(m, c, I)`` refuses a rotational inertia
-    with a slightly negative principal moment that :data:`INERTIA_RTOL` allows (and one that
-    :func:`check_payload` must judge itself). The matrix is symmetrised first.
+    ``rotational`` None: a point mass. Built through the attributes, since
+    ``pin.Inertia(m, c, I)`` refuses a rotational inertia with a slightly negative principal
+    moment that :data:`INERTIA_RTOL` allows (and one that :func:`check_payload` must judge
+    itself). The matrix is symmetrised first.
     """
     body = pin.Inertia.Zero()
     body.mass = mass
-    body.inertia = 0.5 * (rotational + rotational.T)
+    if rotational is not None:
+        body.inertia = 0.5 * (rotational + rotational.T)
     return body
 
 
