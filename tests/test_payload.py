@@ -28,6 +28,7 @@ from vtm_pin.physics.payload import (
     Payload,
     attach_payload,
     attached,
+    attachment,
     body_parameters,
     check_payload,
     describe_payload,
@@ -184,6 +185,22 @@ def test_a_payload_copys_body_parameters_are_its_models_own(name: str, payload: 
     assert np.array_equal(
         body_parameters(arm), [i.toDynamicParameters() for i in arm.model.inertias]
     )
+
+
+def test_a_payload_copy_records_what_was_added_to_which_body() -> None:
+    """Its Attachment: the robot (by weak reference), the carrying joint, the mass and the
+    centre of mass in that joint's frame, where the payload's placed inertia has its lever."""
+    base = load_robot("ur5")  # its own cache, not the session's robot
+    payload = Payload(MASS, COM, inertia_matrix(INERTIA), "wrist_2_link")
+    made = attachment(attach_payload(base, payload))
+    assert made is not None and made.robot() is base and made.mass == MASS
+    frame = base.model.frames[base.model.getFrameId("wrist_2_link")]
+    assert made.joint == frame.parentJoint
+    assert made.lever == tuple(frame.placement.act(np.array(COM)).tolist())
+    assert attachment(base) is None
+    assert attachment(attach_payload(base, Payload(0.0, COM))) is None  # nothing added
+    del base
+    assert made.robot() is None  # the copy does not keep its robot alive
 
 
 def test_zero_mass_leaves_the_dynamics_and_the_original_unchanged() -> None:

@@ -369,6 +369,27 @@ def test_the_gravity_bound_holds_in_every_pose_with_any_payload(name, mass, com,
     assert np.all(loads <= bounds * (1.0 + BOUND_TOL) + BOUND_TOL)
 
 
+@pytest.mark.parametrize("name", ["ur10", "ur5_cb3", "rx160l"])
+@settings(deadline=None)
+@given(
+    mass=st.floats(0.0, 20.0),
+    com=st.tuples(*[st.floats(-0.3, 0.3)] * 3),
+    pick=st.integers(0, 100),
+)
+def test_a_payload_copys_bound_from_its_robots_is_at_least_its_own(name, mass, com, pick):
+    """The bound the holding flags take for a payload copy (its robot's plus the payload's
+    alone) is at least its own gravity bound, on any moving frame: the decision to skip the
+    loads is then never taken where the exact bound would not take it."""
+    base = robot(name)
+    frames = [f.name for f in base.model.frames if f.parentJoint != 0]
+    arm = attach_payload(base, Payload(mass, com, frame=frames[pick % len(frames)]))
+    upper = flags._payload_bounds(arm)
+    if mass == 0.0:
+        assert upper is None  # the robot's own bound, nothing added
+    else:
+        assert upper is not None and np.all(upper >= gravity_bounds(arm))
+
+
 def test_an_arm_with_a_sliding_joint_has_no_gravity_bound():
     assert gravity_bounds(robot("panda")) is None
 
@@ -409,6 +430,28 @@ def test_the_holding_flags_are_those_of_the_sampled_loads_with_or_without_the_bo
             "brake_cannot_hold",
             "brake_cannot_stop",
         }
+
+
+@pytest.mark.parametrize("mass", [0.5, 5.0, 10.0, 20.0, 40.0])
+def test_a_payload_copys_holding_flags_are_those_of_its_sampled_loads(mass, monkeypatch):
+    """A UR10 payload copy of a robot still alive takes its robot's bound plus its payload's:
+    with payloads up to the rated 10 kg the loads are not sampled, with heavier ones they
+    are, and the flags are always those the sampled loads alone give (one stop's poses, the
+    payload varied)."""
+    scenario = vp.build_scenario(shipped("ur10_annex_b", duration=0.4), base_dir=SCENARIOS)
+    result = vp.run_scenario(scenario)
+    report = compute_stopping_report(scenario.robot, result, scenario.brakes, scenario.tool_frame)
+    base = robot("ur10")
+    arm = attach_payload(base, Payload(mass, (0.0, 0.0, 0.05)))
+    sampled = []
+    loads = flags.gravity_loads
+    monkeypatch.setattr(flags, "gravity_loads", lambda *a: sampled.append(1) or loads(*a))
+    quick = holding_flags(arm, scenario.brakes, result, report)
+    assert bool(sampled) == (mass >= 20.0)  # the brakes hold ~13.5 kg in any pose
+    monkeypatch.setattr(flags, "gravity_bounds", lambda arm: None)
+    full = holding_flags(dataclasses.replace(arm), scenario.brakes, result, report)
+    assert [(f.kind, f.message) for f in quick] == [(f.kind, f.message) for f in full]
+    assert bool(full) == (mass >= 20.0)
 
 
 @dataclasses.dataclass(frozen=True)

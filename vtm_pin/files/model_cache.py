@@ -65,6 +65,10 @@ class ModelCache:
             items.move_to_end(key)
         return item
 
+    def find(self, key: Hashable) -> Any:
+        """The entry under ``key`` (not a kinematic one), or None: nothing is built."""
+        return self._items.get(key)
+
     def share_kinematics(self, other: ModelCache) -> None:
         """Share ``other``'s kinematic entries: this cache's model differs in inertias only.
 

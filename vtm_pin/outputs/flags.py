@@ -50,7 +50,7 @@ from ..physics.kinematics import (
     kinematics_key,
     pinocchio_data,
 )
-from ..physics.payload import Payload, body_parameters
+from ..physics.payload import Payload, attachment, body_parameters
 from ..physics.robot import Robot
 from .stopping import StoppingReport
 
@@ -146,7 +146,8 @@ def holding_flags(
     between (a gravity load changes smoothly with the pose; every sample would cost a study's
     case about 2 ms). Where every brake's torque is at least its joint's load in any pose
     (:func:`gravity_bounds`), no load can exceed it: neither flag is raised, and the loads are
-    not computed (~0.06 ms of a UR10 study case).
+    not computed (~0.06 ms of a UR10 study case). A payload copy's bound is bounded from its
+    robot's (:func:`_payload_bounds`), so a drawn payload's case computes none.
     """
     static, kinetic, above = _brake_torques(robot, brakes, result.free[-1])
     if above:
@@ -193,7 +194,9 @@ def _brake_torques(
         return static, kinetic
 
     def above(static: np.ndarray, kinetic: np.ndarray) -> bool:
-        bounds = gravity_bounds(robot)
+        bounds = _payload_bounds(robot)
+        if bounds is None:
+            bounds = gravity_bounds(robot)
         return bounds is not None and _above(static, bounds) and _above(kinetic, bounds)
 
     key = ("brake_torques", tuple(brakes), free.tobytes())
@@ -236,10 +239,16 @@ def _gravity_bounds(robot: Robot) -> np.ndarray | None:
     chain = cached_chain(robot)
     if chain is None or not all(chain.revolute[1:]):
         return None
+    return _bounds_of(robot, body_parameters(robot))
+
+
+def _bounds_of(robot: Robot, parameters: np.ndarray) -> np.ndarray:
+    """:func:`gravity_bounds` of the robot's kinematics with these bodies' parameters."""
+    chain = cached_chain(robot)
+    assert chain is not None
     parents, factor, index = robot.cache.get(
         "gravity_bound_factors", lambda: _bound_factors(robot), kinematic=True
     )
-    parameters = body_parameters(robot)
     mass = parameters[:, 0].tolist()
     subtree = list(mass)  # M_k: the mass each joint carries [kg]
     for j in range(len(mass) - 1, 0, -1):
@@ -255,6 +264,45 @@ def _gravity_bounds(robot: Robot) -> np.ndarray | None:
     out = np.zeros(robot.nv)
     out[index] = (factor * (np.sqrt(np.einsum("ji,ji->j", across, across)) + children))[1:]
     return out
+
+
+def _payload_bounds(robot: Robot) -> np.ndarray | None:
+    """An upper bound of a payload copy's :func:`gravity_bounds` from its robot's [N m], or None.
+
+    The bound is a sum of norms of quantities linear in the bodies' parameters, so the bound
+    of a sum of parameters is at most the sum of their bounds: the robot's, and the payload's
+    alone (mass m at lever c in its joint's frame). That is at most m (U + |c| W), U the bound
+    of a unit mass at the joint's origin and W |g x a_j| (or |g|) for the joint and each joint
+    it hangs from. No per-case bound is computed then (a drawn payload's case: ~0.03 ms); a
+    slack of :data:`SLACK` covers the round-off. None for a robot without an
+    :func:`~vtm_pin.physics.payload.attachment`, or whose robot has no bound.
+    """
+    made = attachment(robot)
+    base = None if made is None else made.robot()
+    bounds = None if base is None else gravity_bounds(base)
+    if made is None or bounds is None:
+        return None
+    unit, lever = robot.cache.get(
+        ("gravity_bound_unit", made.joint), lambda: _unit_bounds(robot, made.joint), kinematic=True
+    )
+    upper = bounds + made.mass * (unit + math.hypot(*made.lever) * lever)
+    return upper * (1.0 + SLACK) + SLACK * float(upper.max())
+
+
+def _unit_bounds(robot: Robot, joint: int) -> tuple[np.ndarray, np.ndarray]:
+    """U and W of :func:`_payload_bounds` for a payload on ``joint``'s body [N m / kg, N / kg]."""
+    parents, factor, index = robot.cache.get(
+        "gravity_bound_factors", lambda: _bound_factors(robot), kinematic=True
+    )
+    unit = np.zeros((len(parents), 10))
+    unit[joint, 0] = 1.0
+    hanging = np.zeros(len(parents))
+    while joint != 0:
+        hanging[joint] = factor[joint]
+        joint = int(parents[joint])
+    lever = np.zeros(robot.nv)
+    lever[index] = hanging[1:]
+    return _bounds_of(robot, unit), lever
 
 
 def _bound_factors(robot: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

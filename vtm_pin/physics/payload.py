@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass
 from numbers import Real
@@ -239,7 +240,39 @@ def attach_payload(robot: Robot, payload: Payload) -> Robot:
     loaded.cache.share_kinematics(robot.cache)  # the same joints: its kinematic entries hold
     if parameters is not None:
         loaded.cache.get(PARAMETERS, lambda: parameters)
+        made = Attachment(weakref.ref(robot), jid, payload.mass, tuple(placed.lever.tolist()))
+        loaded.cache.get(ATTACHMENT, lambda: made)
     return loaded
+
+
+#: The key of a payload copy's :class:`Attachment` in its cache.
+ATTACHMENT = "attachment"
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """What :func:`attach_payload` added to a robot, kept in the copy's cache.
+
+    (A payload copy's gravity bound is then bounded from its robot's, see
+    :func:`vtm_pin.outputs.flags.holding_flags`.)
+
+    Attributes:
+        robot: The robot without the payload, by weak reference (None once it is gone).
+        joint: Pinocchio's index of the joint whose body carries the payload.
+        mass: The payload's mass [kg], above 0.
+        lever: Its centre of mass in that joint's frame [m].
+    """
+
+    robot: weakref.ref[Robot]
+    joint: int
+    mass: float
+    lever: tuple[float, ...]
+
+
+def attachment(robot: Robot) -> Attachment | None:
+    """How ``robot`` was made by :func:`attach_payload` with a payload of mass > 0, or None."""
+    found = robot.cache.find(ATTACHMENT)
+    return found if isinstance(found, Attachment) else None
 
 
 #: The key of :func:`body_parameters` in a robot's cache.
