@@ -968,7 +968,7 @@ class BatchEngine:
         tiny = dp.too_small(lanes.t[rows], h)
         for b, hb in zip(rows[tiny], h[tiny], strict=True):
             it = self.integrator
-            finite_f = bool(np.all(np.isfinite(lanes.fy[b])))
+            finite_f = bool(np.isfinite(lanes.fy[b]).all())
             reason = (
                 "the derivatives are not finite there"
                 if not finite_f

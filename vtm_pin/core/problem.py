@@ -81,7 +81,7 @@ class Problem:
             value = np.array(getattr(self, name), dtype=float).reshape(-1)
             if value.size != n:
                 raise ProblemError(key, f"has {value.size} values but the robot has {n} joints")
-            if not np.all(np.isfinite(value)):
+            if not np.isfinite(value).all():
                 raise ProblemError(key, "values must be finite numbers")
             value.flags.writeable = False
             object.__setattr__(self, name, value)
@@ -139,10 +139,11 @@ def _check_events(problem: Problem) -> None:
 def _check_brakes(problem: Problem) -> None:
     """Known joints, one brake each, a stop to engage them, no frame constraints with them."""
     seen: set[str] = set()
+    joints = problem.robot.joints
     for brake in problem.brakes:
-        key = f"brakes.{excerpt(brake.joint)}"
-        _check_joint(problem.robot.joints, brake.joint, key)
-        if brake.joint in seen:
+        if brake.joint not in joints or brake.joint in seen:
+            key = f"brakes.{excerpt(brake.joint)}"
+            _check_joint(joints, brake.joint, key)
             raise ProblemError(key, "a joint has one brake")
         seen.add(brake.joint)
     if problem.brakes and problem.stop is None:

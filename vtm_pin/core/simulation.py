@@ -10,6 +10,7 @@ transition rule with J1 the joints already locked and J2 the ones locking now.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import heapq
 import time
 from collections.abc import Callable, Generator, Sequence
@@ -801,21 +802,22 @@ class PlainStop:
         n = robot.nv
         y = _rested_states(rests)
         joints = [piece.joint for piece in rests]
-        ends = [piece.y[-1].copy() for piece in rests]  # each one's last state
+        ends = y[np.cumsum([piece.t.size for piece in rests]) - 1]  # each one's last state
         # Before rest k the joints of rests 0..k-1 are locked: free, and (the transition's
         # test) their rates must be exactly 0 there.
-        before = np.tri(len(rests), k=-1, dtype=bool)
+        before, after = _stick_order(len(rests))
         free = np.ones((len(rests), n), dtype=bool)
-        free[:, joints] = ~before
-        if np.array([end[n:][joints] for end in ends])[before].any():
+        free[:, joints] = after
+        if ends[:, n : 2 * n][:, joints][before].any():
             return None
         locked: list[int] = []
         events: list[_RestLock] = []
         labels = joint_labels(robot)
-        for k, (piece, j, end) in enumerate(zip(rests, joints, ends, strict=True)):
+        for k, (piece, j) in enumerate(zip(rests, joints, strict=True)):
             self.rhs_evals += piece.rhs_evals
             self.steps += piece.steps
             self.trace._rows(free[k], self.modes, piece.t.size)  # before its stick
+            end = ends[k]
             t, v = float(piece.t[-1]), end[n : 2 * n]
             rate = float(v[j])
             v[j] = 0.0
@@ -852,6 +854,18 @@ class PlainStop:
             steps=self.steps,
             wall_time=0.0,  # the engine's share replaces it
         )
+
+
+@functools.lru_cache(maxsize=64)
+def _stick_order(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Which of ``count`` rests' joints stick before each (strictly lower triangle), and not.
+
+    Kept per count (read-only): a study's cases stick the same number of joints.
+    """
+    before = np.tri(count, k=-1, dtype=bool)
+    after = ~before
+    before.flags.writeable = after.flags.writeable = False
+    return before, after
 
 
 def _rested_states(rests: Sequence[Rested]) -> np.ndarray:

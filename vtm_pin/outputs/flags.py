@@ -215,7 +215,7 @@ def _brake_torques(
 
 def _above(torques: np.ndarray, bounds: np.ndarray) -> bool:
     """Whether every brake torque (NaN: no brake, not checked) is at least its bound [N m]."""
-    return bool(np.all(np.isnan(torques) | (torques >= bounds)))
+    return bool((np.isnan(torques) | (torques >= bounds)).all())
 
 
 def gravity_bounds(robot: Robot) -> np.ndarray | None:
@@ -544,7 +544,7 @@ def speed_flag(
 def _velocity_limits(robot: Robot) -> np.ndarray | None:
     """The joints' URDF velocity limits [rad/s or m/s] (read only); None unless all are > 0."""
     limits = np.array(robot.model.velocityLimit, dtype=float)
-    if not np.all(np.isfinite(limits) & (limits > 0.0)):
+    if not (np.isfinite(limits) & (limits > 0.0)).all():
         return None
     limits.flags.writeable = False
     return limits

@@ -410,7 +410,7 @@ def compute_stopping_report(
     rest_speed = result.stop.rest_speed if result.stop is not None else DEFAULT_REST_SPEED
     figures = motion.figures or sample_figures([result], [i0], path, speed)[0]
     stop_time = figures.rest_times - t_signal
-    all_stopped = float(np.max(stop_time)) if np.all(np.isfinite(stop_time)) else float("nan")
+    all_stopped = float(np.max(stop_time)) if np.isfinite(stop_time).all() else float("nan")
     return StoppingReport(
         signal_time=t_signal,
         names=tuple(robot.joints),

@@ -388,7 +388,7 @@ class _Chain:
 def _as_q(model: pin.Model, q: np.ndarray | Sequence[float]) -> np.ndarray:
     """``q`` as a float array of shape (nq,), or ValueError."""
     arr = np.array(q, dtype=float).reshape(-1)
-    if arr.shape != (model.nq,) or not np.all(np.isfinite(arr)):
+    if arr.shape != (model.nq,) or not np.isfinite(arr).all():
         raise ValueError(f"q must hold {model.nq} finite values, not {excerpt(q)}")
     return arr
 

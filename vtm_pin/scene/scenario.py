@@ -911,7 +911,7 @@ def _joint_vector(robot: Robot, value: Any, source: str, key: str) -> np.ndarray
                 f"has {len(value)} values but the robot has {n} joints ({', '.join(robot.joints)})",
             )
         out = np.array(value, dtype=float)
-    if not np.all(np.isfinite(out)):
+    if not np.isfinite(out).all():
         raise ScenarioError(source, key, "values must be finite numbers")
     return out
 
