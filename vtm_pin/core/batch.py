@@ -305,14 +305,18 @@ class _Dynamics:
         self.pool = pin.ModelPool(model, threads)
         self.weightless = pin.ModelPool(weightless(model), threads)
         self.gravity = np.array(model.gravity.vector)
-        #: The joints whose bodies' inertias differ in some lane, and per lane the differences
-        #: (lane, joint, 6, 6) [kg, kg m, kg m^2]; lanes with one are ``loaded``.
+        #: The joints whose bodies' inertias differ in some lane; the lanes with a difference.
         self.joints: tuple[int, ...] = ()
-        self.delta = np.zeros((0, 0, 6, 6))
         self.loaded = np.zeros(0 if models is None else len(models), dtype=bool)
         self.chain: JointChain | None = None
+        self._model, self._models = model, models
+        self._delta: np.ndarray | None = None
+        each = {id(model): _parameters(model)}  # by model: a study's lanes share one a payload
         if models is not None:
-            self._inertias(model, models)
+            for m in models:
+                if id(m) not in each:
+                    each[id(m)] = _parameters(m)
+            self._differences(each[id(model)], np.array([each[id(m)] for m in models]))
         #: Whether the states go to the compiled kernel; the bodies' dynamic
         #: parameters it reads, shape (P, njoints, 10): the pool model's, then one row per
         #: lane if their inertias differ (lane r's is row r + 1).
@@ -320,10 +324,6 @@ class _Dynamics:
             self.chain = joint_chain(model)
         self.compiled = chain_dynamics.runs() and self.chain is not None
         some = [model, *(models if models is not None and self.joints else ())]
-        each: dict[int, np.ndarray] = {}  # by model: a study's lanes share one per payload
-        for m in some:
-            if id(m) not in each:
-                each[id(m)] = _parameters(m)
         self.parameters = np.array([each[id(m)] for m in some])
         self.armature = np.array(model.armature)
         #: Batched Pinocchio calls made, and the states they evaluated; the states the
@@ -332,22 +332,33 @@ class _Dynamics:
         self.states = 0
         self.kernel_states = 0
 
-    def _inertias(self, model: pin.Model, models: Sequence[pin.Model]) -> None:
-        """The lanes' inertia differences from ``model`` (see the class docstring)."""
-        base = np.array([inertia.matrix() for inertia in model.inertias])
-        each: dict[int, np.ndarray] = {}  # by model: a study's lanes share one per payload
-        for m in models:
-            if id(m) not in each:
-                each[id(m)] = np.array([inertia.matrix() for inertia in m.inertias]) - base
-        delta = np.array([each[id(m)] for m in models])
-        differs = np.flatnonzero(delta.any(axis=(0, 2, 3)))
+    def _differences(self, own: np.ndarray, lanes: np.ndarray) -> None:
+        """Which joints' bodies differ from the pool model's ``own`` parameters in ``lanes``'."""
+        differs = np.flatnonzero((lanes != own).any(axis=(0, 2)))
         if differs.size == 0:
             return
-        self.chain = joint_chain(model)
+        self.chain = joint_chain(self._model)
         assert self.chain is not None, "batch_key lets no such model differ in its inertias"
         self.joints = tuple(int(j) for j in differs)
-        self.delta = delta[:, differs]
-        self.loaded = np.asarray(self.delta.any(axis=(1, 2, 3)))
+        self.loaded = np.asarray((lanes[:, differs] != own[differs]).any(axis=(1, 2)))
+
+    @property
+    def delta(self) -> np.ndarray:
+        """Per lane its :attr:`joints`' inertias less the pool model's, (lane, joint, 6, 6).
+
+        [kg, kg m, kg m^2] (see the class docstring); made when the NumPy path first needs
+        them, for some :attr:`loaded` lane (the compiled kernel reads the lanes'
+        :attr:`parameters`).
+        """
+        if self._delta is None:
+            joints, models = self.joints, self._models or ()
+            base = np.array([self._model.inertias[j].matrix() for j in joints])
+            each: dict[int, np.ndarray] = {}  # by model, as the parameters
+            for m in models:
+                if id(m) not in each:
+                    each[id(m)] = np.array([m.inertias[j].matrix() for j in joints]) - base
+            self._delta = np.array([each[id(m)] for m in models])
+        return self._delta
 
     def _call(
         self, algorithm: object, pool: pin.ModelPool, q: np.ndarray, v: np.ndarray, x: np.ndarray
