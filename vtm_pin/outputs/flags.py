@@ -186,30 +186,30 @@ def _brake_torques(
     payload share them (a drawn payload's case computes only its bound).
     """
 
-    def torques() -> tuple[np.ndarray, np.ndarray]:
+    def torques() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         static, kinetic = static_torques(robot, brakes), kinetic_torques(robot, brakes)
         for each in (static, kinetic):
             each[np.isnan(each) & free] = 0.0
             each.flags.writeable = False
-        return static, kinetic
+        return static, kinetic, np.fmin(static, kinetic)  # NaN where both are (not checked)
 
-    def above(static: np.ndarray, kinetic: np.ndarray) -> bool:
+    def above(weakest: np.ndarray) -> bool:
         bounds = _payload_bounds(robot)
         if bounds is None:
             bounds = gravity_bounds(robot)
-        return bounds is not None and _above(static, bounds) and _above(kinetic, bounds)
+        return bounds is not None and _above(weakest, bounds)
 
     key = ("brake_torques", tuple(brakes), free.tobytes())
     try:
         hash(key)
     except TypeError:  # a friction law of the caller's own with an unhashable field: not kept
-        static, kinetic = torques()
-        return static, kinetic, above(static, kinetic)
-    static, kinetic = robot.cache.get(key, torques, kinematic=True)
+        static, kinetic, weakest = torques()
+        return static, kinetic, above(weakest)
+    static, kinetic, weakest = robot.cache.get(key, torques, kinematic=True)
     return (
         static,
         kinetic,
-        robot.cache.get(("brakes_above", *key[1:]), lambda: above(static, kinetic)),
+        robot.cache.get(("brakes_above", *key[1:]), lambda: above(weakest)),
     )
 
 
@@ -282,15 +282,21 @@ def _payload_bounds(robot: Robot) -> np.ndarray | None:
     bounds = None if base is None else gravity_bounds(base)
     if made is None or bounds is None:
         return None
-    unit, lever = robot.cache.get(
+    terms = robot.cache.get(
         ("gravity_bound_unit", made.joint), lambda: _unit_bounds(robot, made.joint), kinematic=True
     )
-    upper = bounds + made.mass * (unit + math.hypot(*made.lever) * lever)
-    return upper * (1.0 + SLACK) + SLACK * float(upper.max())
+    mass, moment = made.mass, made.mass * math.hypot(*made.lever)
+    # Six floats a UR10: plain Python costs half NumPy's small-array calls.
+    upper = [b + mass * u + moment * w for b, (u, w) in zip(bounds.tolist(), terms, strict=True)]
+    slack = SLACK * max(upper)
+    return np.array([each * (1.0 + SLACK) + slack for each in upper])
 
 
-def _unit_bounds(robot: Robot, joint: int) -> tuple[np.ndarray, np.ndarray]:
-    """U and W of :func:`_payload_bounds` for a payload on ``joint``'s body [N m / kg, N / kg]."""
+def _unit_bounds(robot: Robot, joint: int) -> tuple[tuple[float, float], ...]:
+    """U and W of :func:`_payload_bounds` for a payload on ``joint``'s body, per coordinate.
+
+    [N m / kg, N / kg], as pairs of floats.
+    """
     parents, factor, index = robot.cache.get(
         "gravity_bound_factors", lambda: _bound_factors(robot), kinematic=True
     )
@@ -302,7 +308,7 @@ def _unit_bounds(robot: Robot, joint: int) -> tuple[np.ndarray, np.ndarray]:
         joint = int(parents[joint])
     lever = np.zeros(robot.nv)
     lever[index] = hanging[1:]
-    return _bounds_of(robot, unit), lever
+    return tuple(zip(_bounds_of(robot, unit).tolist(), lever.tolist(), strict=True))
 
 
 def _bound_factors(robot: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
