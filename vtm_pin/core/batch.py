@@ -952,14 +952,8 @@ class BatchEngine:
             self._reject(lanes, runs, rows[bad], h[bad], err[bad], finished)
         good = ~bad
         if good.any():
-            self._accept(
-                lanes,
-                runs,
-                rows[good],
-                _Step(h[good], last[good], err[good], K[good], y_new[good]),
-                lam_new[good],
-                finished,
-            )
+            step = _Step(h, last, err, K, y_new).select(good)
+            self._accept(lanes, runs, rows[good], step, lam_new[good], finished)
         return finished
 
     def _reject(
@@ -1021,23 +1015,23 @@ class BatchEngine:
             if int(b) not in going:
                 lanes.running[b] = False
                 finished.append(int(b))
-        go = ~events
-        rows, step, t_new = rows[go], step.select(go), t_new[go]
+        go = ~events  # the stages are not copied: f at the step's end only
+        rows, t_new, last = rows[go], t_new[go], step.last[go]
         lanes.g_prev[rows] = g_new[go]
-        factor = dp.grow(step.err, lanes.rejected[rows], _LANES)
+        factor = dp.grow(step.err[go], lanes.rejected[rows], _LANES)
         lanes.rejected[rows] = False
-        lanes.t[rows], lanes.y[rows], lanes.fy[rows] = t_new, step.y_new, step.K[:, dp.S]
+        lanes.t[rows], lanes.y[rows], lanes.fy[rows] = t_new, step.y_new[go], step.K[go, dp.S]
         lanes.lam[rows] = lam_new[go]
-        lanes.h[rows] = step.h * factor
+        lanes.h[rows] = step.h[go] * factor
         gridless = lanes.out_end[rows] == -math.inf
         engaging: list[int] = []  # plain stops at their brakes' engagement
-        for i in np.flatnonzero(step.last | gridless):
+        for i in np.flatnonzero(last | gridless):
             b = int(rows[i])
             run = runs[b]
             run.sample(lanes, b)
-            if step.last[i] and run.plain is None and run.engage_at == lanes.t[b]:
+            if last[i] and run.plain is None and run.engage_at == lanes.t[b]:
                 engaging.append(b)
-            elif step.last[i]:
+            elif last[i]:
                 lanes.running[b] = False
                 self._finish(lanes, run, b, None)
                 finished.append(b)
@@ -1581,7 +1575,9 @@ class BatchEngine:
 class _Step:
     """The accepted step of some lanes: sizes, whether last, errors, stages, new states.
 
-    K: per lane the stages (f at the step's end in K[:, 12]), shape (B, 16, ny).
+    K: per lane the stages (f at the step's end in K[:, 12]), shape (B, 16, ny); it may be
+    the engine's buffer of the round's stages (:meth:`select` of every lane copies nothing:
+    3.4 MB a round of 1,250 UR10 lanes), valid until the next round's.
     """
 
     h: np.ndarray
@@ -1591,6 +1587,9 @@ class _Step:
     y_new: np.ndarray
 
     def select(self, mask: np.ndarray) -> _Step:
+        """The lanes of ``mask``; this step itself if it holds every lane."""
+        if mask.all():
+            return self
         return _Step(self.h[mask], self.last[mask], self.err[mask], self.K[mask], self.y_new[mask])
 
 
