@@ -682,27 +682,33 @@ class BatchEngine:
     # The right-hand side of every lane in ``rows`` at times t and padded states y.
 
     def rhs(
-        self, lanes: _Lanes, rows: np.ndarray, t: np.ndarray, y: np.ndarray
+        self,
+        lanes: _Lanes,
+        rows: np.ndarray,
+        t: np.ndarray,
+        y: np.ndarray,
+        drives: _Drives | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """dy/dt (padded) and holding torques [N m] of lanes ``rows`` at (t, y)."""
+        """dy/dt (padded) and holding torques [N m] of lanes ``rows`` at (t, y).
+
+        ``drives``: the rows' :class:`_Drives`, when the caller evaluates them more than once
+        (a step's stages).
+        """
         n = self.n
         start = time.perf_counter()
+        d = _drives(lanes, rows) if drives is None else drives
         q, v = y[:, :n], y[:, n : 2 * n]
-        ratio = lanes.ratio[rows]
-        sign = lanes.sign[rows]
-        kinetic = lanes.torque[rows]
+        ratio, sign, kinetic = d.ratio, d.sign, d.torque
         # Terms no lane has are left out (1 x and x + 0 are exact: the same torques).
-        if lanes.viscous.any():
+        if d.viscous is not None:
             slip = np.maximum(sign * (ratio * v), 0.0)  # [rad/s] motor side, as Viscous.kinetic
-            kinetic = kinetic * (1.0 + slip * lanes.viscous[rows])
-        tau = -sign * (ratio * (_ramp_factor(lanes, rows, t) * kinetic))
+            kinetic = kinetic * (1.0 + slip * d.viscous)
+        tau = -sign * (ratio * (_ramp(d.ramp, t) * kinetic))
         applied, tau_short = tau, None
-        if lanes.short_torque.any():
-            tau_short = short_circuit_torque(
-                ratio, lanes.short_torque[rows], lanes.short_speed[rows], v
-            )
+        if d.short is not None:
+            tau_short = short_circuit_torque(ratio, d.short[0], d.short[1], v)
             applied = tau + tau_short
-        a, lam = self.dynamics.accelerations(q, v, applied, lanes.locked[rows], rows)
+        a, lam = self.dynamics.accelerations(q, v, applied, d.locked, rows)
         out = np.zeros_like(y)
         out[:, :n] = v
         out[:, n : 2 * n] = a
@@ -901,7 +907,7 @@ class BatchEngine:
         """The state-event functions of lanes ``rows`` (NaN where a joint has none)."""
         n = self.n
         kind = lanes.event_kind[rows]
-        static = lanes.ratio[rows] * (_ramp_factor(lanes, rows, t) * lanes.breakaway[rows])
+        static = lanes.ratio[rows] * (_ramp(_ramps(lanes, rows), t) * lanes.breakaway[rows])
         scale = np.maximum(1.0, np.max(np.abs(lam), axis=1))
         margin = static + ROUNDOFF * scale[:, None] - np.abs(lam)
         g = np.where(kind == 1, y[:, n : 2 * n], margin)
@@ -917,9 +923,10 @@ class BatchEngine:
         if work is None:
             work = self._work[rows.size] = dp.Stages(lanes.ny, rows.size)
         held: list[np.ndarray] = []
+        drives = _drives(lanes, rows)
 
         def into(t: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:
-            out[...], lam = self.rhs(lanes, rows, t, y)
+            out[...], lam = self.rhs(lanes, rows, t, y, drives)
             held[:] = [lam]
 
         work.K[:, 0] = lanes.fy[rows]
@@ -1410,9 +1417,10 @@ class BatchEngine:
 
     def _dense_coefficients(self, lanes: _Lanes, rows: np.ndarray, step: _Step) -> np.ndarray:
         """The 7th-order continuous extensions' coefficients F, shape (B, 7, ny)."""
+        drives = _drives(lanes, rows)
 
         def into(t: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:
-            out[...], _ = self.rhs(lanes, rows, t, y)
+            out[...], _ = self.rhs(lanes, rows, t, y, drives)
 
         t, y = lanes.t[rows], lanes.y[rows]
         return dp.dense_coefficients(into, t, y, step.y_new, step.h, step.K, _LANES)
@@ -1653,15 +1661,52 @@ def _order_events(lanes: _Lanes, rows: np.ndarray) -> None:
     lanes.event_index[rows] = np.argsort(np.argsort(key, axis=1), axis=1)
 
 
-def _ramp_factor(lanes: _Lanes, rows: np.ndarray, t: np.ndarray) -> np.ndarray | float:
+@dataclass(frozen=True)
+class _Drives:
+    """What the right-hand side reads of some lanes, gathered once for a step's stages.
+
+    Each lane's brakes and drives (gear ratios, modes' signs, sliding torques [N m], locks)
+    do not change within a step. A term no lane of the batch has is None: viscous factors,
+    the normal-force ramps (engagement times [s], ramp times [s]) and the short-circuit
+    peaks (torque [N m], speed [rad/s]).
+    """
+
+    ratio: np.ndarray
+    sign: np.ndarray
+    torque: np.ndarray
+    locked: np.ndarray
+    viscous: np.ndarray | None
+    ramp: tuple[np.ndarray, np.ndarray] | None
+    short: tuple[np.ndarray, np.ndarray] | None
+
+
+def _drives(lanes: _Lanes, rows: np.ndarray) -> _Drives:
+    """The :class:`_Drives` of lanes ``rows``."""
+    return _Drives(
+        lanes.ratio[rows],
+        lanes.sign[rows],
+        lanes.torque[rows],
+        lanes.locked[rows],
+        lanes.viscous[rows] if lanes.viscous.any() else None,
+        _ramps(lanes, rows),
+        (lanes.short_torque[rows], lanes.short_speed[rows]) if lanes.short_torque.any() else None,
+    )
+
+
+def _ramps(lanes: _Lanes, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The rows' brakes' engagement and ramp times [s]; None where no lane's brake ramps."""
+    return (lanes.engaged[rows], lanes.ramp[rows]) if lanes.ramp.any() else None
+
+
+def _ramp(ramps: tuple[np.ndarray, np.ndarray] | None, t: np.ndarray) -> np.ndarray | float:
     """The brakes' normal-force ramp at times t [s]: 0 to 1 over ``ramp`` after engaging.
 
     1.0 where no lane's brake ramps (the factor is then 1 everywhere: the products are exact).
     """
-    if not lanes.ramp.any():
+    if ramps is None:
         return 1.0
-    elapsed = t[:, None] - lanes.engaged[rows]
-    ramp = lanes.ramp[rows]
+    engaged, ramp = ramps
+    elapsed = t[:, None] - engaged
     return np.where(ramp == 0.0, 1.0, np.clip(elapsed / np.where(ramp == 0.0, 1.0, ramp), 0.0, 1.0))
 
 
