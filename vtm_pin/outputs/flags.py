@@ -274,7 +274,8 @@ def _payload_bounds(robot: Robot) -> np.ndarray | None:
     alone (mass m at lever c in its joint's frame). That is at most m (U + |c| W), U the bound
     of a unit mass at the joint's origin and W |g x a_j| (or |g|) for the joint and each joint
     it hangs from. No per-case bound is computed then (a drawn payload's case: ~0.03 ms); a
-    slack of :data:`SLACK` covers the round-off. None for a robot without an
+    slack of :data:`SLACK` times the largest bound or 1 N m, whichever is larger, covers the
+    round-off (bounds near 0 round to either side of each other). None for a robot without an
     :func:`~vtm_pin.physics.payload.attachment`, or whose robot has no bound.
     """
     made = attachment(robot)
@@ -288,7 +289,7 @@ def _payload_bounds(robot: Robot) -> np.ndarray | None:
     mass, moment = made.mass, made.mass * math.hypot(*made.lever)
     # Six floats a UR10: plain Python costs half NumPy's small-array calls.
     upper = [b + mass * u + moment * w for b, (u, w) in zip(bounds.tolist(), terms, strict=True)]
-    slack = SLACK * max(upper)
+    slack = SLACK * max(1.0, *upper)  # [N m], as _load_flag's
     return np.array([each * (1.0 + SLACK) + slack for each in upper])
 
 
