@@ -311,7 +311,7 @@ class _Dynamics:
         self.chain: JointChain | None = None
         self._model, self._models = model, models
         self._delta: np.ndarray | None = None
-        each = {id(model): _parameters(model)}  # by model: a study's lanes share one a payload
+        each = {id(model): _parameters(model)}  # by model: a study's lanes share one per payload
         if models is not None:
             for m in models:
                 if id(m) not in each:
